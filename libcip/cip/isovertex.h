@@ -1,0 +1,48 @@
+/// @file isovertex.h
+/// @brief Isovertices (edge crossings) and their corner planes, shared by the four cells around a grid edge.
+#pragma once
+#include <cstdint>
+#include <string>
+
+#include "cip/dense_grid.h"
+
+namespace cip {
+
+/// How the corner plane's normal at an isovertex is chosen.
+enum class NormalMode : std::uint8_t {
+  Edge = 0,      ///< along the crossed edge, towards its positive vertex (corner I-patch paper, section 7.1)
+  Gradient = 1,  ///< central-difference gradients at the edge's two grid points, interpolated along the edge
+  Exact = 2,     ///< exact edge root and exact gradient of an analytic field (paper, section 7.4)
+};
+const char* toString(NormalMode mode);
+/// Parses "edge", "gradient" or "exact"; throws cip::Error otherwise.
+NormalMode parseNormalMode(const std::string& text);
+
+/// An isovertex with its corner plane S(x) = normal . (x - position) and corner coefficient.
+struct IsoVertex {
+  Vec3 position = Vec3::Zero();  ///< index coordinates (on a grid edge)
+  Vec3 normal = Vec3::UnitX();   ///< unit normal in index space, pointing to the positive side
+  double weight = 1.0;           ///< corner coefficient a_c, shared by the cells around the edge
+};
+
+/// An analytic scalar field, for exact isovertices and gradients. Coordinates and gradients are in world units.
+class ScalarField {
+ public:
+  virtual ~ScalarField() = default;
+  virtual double value(const Vec3& world) const = 0;
+  virtual Vec3 gradient(const Vec3& world) const = 0;
+};
+
+/// Parameter in [0,1] of the isovalue crossing on an edge with end values v0, v1 (linear interpolation).
+double linearCrossing(double v0, double v1, double isovalue);
+
+/// Root of field - isovalue on the world segment a..b, bracketed by the caller (signs differ at the ends); returns
+/// its parameter in [0,1] to double precision (Illinois regula falsi with bisection safeguard).
+double exactCrossing(const ScalarField& field, const Vec3& a, const Vec3& b, double isovalue);
+
+/// Makes `normal` (index space) a unit vector pointing into the half-space of `towardsPositive` (a unit edge direction
+/// towards the edge's positive vertex) by at least a minimal angle; a zero or non-finite normal becomes the edge
+/// direction. A corner plane that leans the wrong way would give the patch the wrong sign at its own isovertex.
+Vec3 orientCornerNormal(const Vec3& normal, const Vec3& towardsPositive);
+
+}  // namespace cip
