@@ -94,7 +94,6 @@ std::vector<std::uint8_t> serializeModel(const Model& m) {
   w.put<std::uint64_t>(m.vertices.size());
   w.put<std::uint64_t>(m.cells.size());
   w.put<std::uint64_t>(m.corners.size());
-  const std::size_t bodyStart = w.bytes.size();
   for (const IsoVertex& v : m.vertices) {
     for (int a = 0; a < 3; ++a) w.put<double>(v.position[a]);
     for (int a = 0; a < 3; ++a) w.put<double>(v.normal[a]);
@@ -112,7 +111,7 @@ std::vector<std::uint8_t> serializeModel(const Model& m) {
       if ((faces >> f) & 1) w.put<double>(c.faceCoefficient[f]);
     w.put<double>(c.central);
   }
-  w.put<std::uint32_t>(crc(w.bytes.data() + bodyStart, w.bytes.size() - bodyStart));
+  w.put<std::uint32_t>(crc(w.bytes.data(), w.bytes.size()));
   return std::move(w.bytes);
 }
 
@@ -153,7 +152,6 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   auto numVertices = r.get<std::uint64_t>("vertex count");
   auto numCells = r.get<std::uint64_t>("cell count");
   auto numCorners = r.get<std::uint64_t>("corner count");
-  const std::size_t bodyStart = r.pos();
   // Every count must be backed by bytes before anything is allocated.
   if (numVertices > r.remaining() / kVertexBytes) r.fail("vertex count " + std::to_string(numVertices) + " exceeds the file");
   if (numCorners > r.remaining() / 4 || numCorners > std::numeric_limits<std::uint32_t>::max())
@@ -216,7 +214,7 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   std::size_t bodyEnd = r.pos();
   auto stored = r.get<std::uint32_t>("checksum");
   if (r.remaining() != 0) r.fail(std::to_string(r.remaining()) + " unexpected bytes after the checksum");
-  if (stored != crc(data + bodyStart, bodyEnd - bodyStart)) r.fail("checksum mismatch");
+  if (stored != crc(data, bodyEnd)) r.fail("checksum mismatch");
   return m;
 }
 

@@ -1,0 +1,182 @@
+// Model file: round trip, rejection of damaged files, identical bytes for any thread count.
+#include "cip/model_file.h"
+
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "cip/analytic_field.h"
+#include "cip/error.h"
+#include "cip/model_builder.h"
+#include "support/random_volume.h"
+
+using namespace cip;
+
+namespace {
+
+Model sampleModel() {
+  DenseGrid g = test::randomVolume(8, 42);
+  BuildOptions o;
+  o.central = CentralRule::Interior;
+  return buildModel(g, o);
+}
+
+void expectParseError(const std::vector<std::uint8_t>& bytes, const std::string& fragment) {
+  try {
+    parseModel(bytes.data(), bytes.size(), "test.cip");
+    FAIL() << "accepted a damaged file (expected '" << fragment << "')";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+  }
+}
+
+// Re-seal a modified file with a correct checksum so that structural validation is what must catch it.
+void reseal(std::vector<std::uint8_t>& bytes) {
+  std::uint32_t c = static_cast<std::uint32_t>(crc32(0L, bytes.data(), static_cast<uInt>(bytes.size() - 4)));
+  std::memcpy(bytes.data() + bytes.size() - 4, &c, 4);
+}
+
+// Byte offset of the three counts (vertex, cell, corner) in the header.
+std::size_t countsOffset(const Model& m) { return 8 + 4 + 24 + 24 + 24 + 8 + 4 + 4 + m.source.size(); }
+
+}  // namespace
+
+TEST(ModelFile, RoundTripIsIdentical) {
+  Model m = sampleModel();
+  ASSERT_GT(m.cells.size(), 100u);
+  std::string path = (std::filesystem::temp_directory_path() / "cip_roundtrip.cip").string();
+  std::size_t written = writeModel(m, path);
+  EXPECT_EQ(written, std::filesystem::file_size(path));
+  Model r = readModel(path);
+  EXPECT_EQ(serializeModel(r), serializeModel(m));
+  EXPECT_EQ(r.geometry.dims, m.geometry.dims);
+  EXPECT_EQ(r.source, m.source);
+  ASSERT_EQ(r.cells.size(), m.cells.size());
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (std::size_t c = 0; c < m.cells.size(); c += 7) {
+    CornerPatch a = m.patch(c), b = r.patch(c);
+    for (int s = 0; s < 5; ++s) {
+      Vec3 x(u(rng), u(rng), u(rng));
+      EXPECT_EQ(a.value(x), b.value(x));  // bit-identical evaluation
+    }
+  }
+  std::filesystem::remove(path);
+}
+
+TEST(ModelFile, TruncatedFilesAreRejected) {
+  std::vector<std::uint8_t> bytes = serializeModel(sampleModel());
+  for (std::size_t len = 0; len < bytes.size(); len += 1 + len / 16) {
+    std::vector<std::uint8_t> cut(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(len));
+    EXPECT_THROW(parseModel(cut.data(), cut.size(), "cut.cip"), Error) << "length " << len;
+  }
+  std::vector<std::uint8_t> longer = bytes;
+  longer.push_back(0);
+  EXPECT_THROW(parseModel(longer.data(), longer.size()), Error);
+}
+
+TEST(ModelFile, CorruptedBytesAreRejected) {
+  std::vector<std::uint8_t> bytes = serializeModel(sampleModel());
+  std::mt19937 rng(9);
+  for (int trial = 0; trial < 300; ++trial) {
+    std::vector<std::uint8_t> bad = bytes;
+    std::size_t at = rng() % bad.size();
+    bad[at] = static_cast<std::uint8_t>(bad[at] ^ (1u << (rng() % 8)));
+    EXPECT_THROW(parseModel(bad.data(), bad.size()), Error) << "byte " << at;
+  }
+}
+
+TEST(ModelFile, OutOfRangeFieldsAreRejectedEvenWithAValidChecksum) {
+  Model m = sampleModel();
+  const std::vector<std::uint8_t> good = serializeModel(m);
+  auto patched = [&](std::size_t offset, const void* value, std::size_t n) {
+    std::vector<std::uint8_t> b = good;
+    std::memcpy(b.data() + offset, value, n);
+    reseal(b);
+    return b;
+  };
+  const std::size_t counts = countsOffset(m);
+  std::uint64_t huge = ~std::uint64_t(0) / 3;
+  expectParseError(patched(counts, &huge, 8), "vertex count");
+  expectParseError(patched(counts + 8, &huge, 8), "cell count");
+  expectParseError(patched(counts + 16, &huge, 8), "corner count");
+  std::int64_t badDim = -5;
+  expectParseError(patched(12, &badDim, 8), "grid dimension");
+  std::uint32_t version = 99;
+  expectParseError(patched(8, &version, 4), "version 99");
+  double nan = std::nan("");
+  expectParseError(patched(12 + 24 + 24, &nan, 8), "spacing");
+  // First cell: its index, configuration and first corner index.
+  const std::size_t firstCell = counts + 24 + m.vertices.size() * 56;
+  std::uint32_t outside = 1000;
+  expectParseError(patched(firstCell, &outside, 4), "outside the grid");
+  std::uint8_t empty = 0;
+  expectParseError(patched(firstCell + 12, &empty, 1), "empty configuration");
+  std::uint8_t loops = 4;
+  expectParseError(patched(firstCell + 14, &loops, 1), "loops do not match");
+  std::uint32_t badVertex = static_cast<std::uint32_t>(m.vertices.size());
+  expectParseError(patched(firstCell + 19, &badVertex, 4), "out of range");
+  std::uint32_t wrongVertex = m.corners[1] != m.corners[0] ? m.corners[1] : m.corners[2];
+  expectParseError(patched(firstCell + 19, &wrongVertex, 4), "not on its edge");
+  expectParseError(std::vector<std::uint8_t>{'n', 'o', 't', ' ', 'a', ' ', 'm', 'o', 'd', 'e', 'l'}, "magic");
+}
+
+TEST(ModelFile, WriteIsAtomicAndFailureLeavesPreviousFile) {
+  std::string dir = (std::filesystem::temp_directory_path() / "cip_atomic_test").string();
+  std::filesystem::create_directories(dir);
+  std::string path = dir + "/m.cip";
+  {
+    std::ofstream(path) << "previous contents";
+  }
+  EXPECT_THROW(writeModel(sampleModel(), dir + "/missing-dir/m.cip"), Error);
+  EXPECT_THROW(readModel(dir + "/does-not-exist.cip"), Error);
+  EXPECT_THROW(readModel(path), Error);  // not a model: rejected, file untouched
+  std::ifstream in(path);
+  std::string s((std::istreambuf_iterator<char>(in)), {});
+  EXPECT_EQ(s, "previous contents");
+  writeModel(sampleModel(), path);
+  std::size_t files = 0;
+  for (auto& e : std::filesystem::directory_iterator(dir)) files += e.is_regular_file();
+  EXPECT_EQ(files, 1u) << "no temporary file left behind";
+  std::filesystem::remove_all(dir);
+}
+
+TEST(ModelBuilder, IdenticalBytesForAnyThreadCount) {
+  auto field = makeAnalyticField("gyroid");
+  DenseGrid g = sampleField(*field, 20, "gyroid");
+  for (NormalMode mode : {NormalMode::Gradient, NormalMode::Exact}) {
+    std::vector<std::uint8_t> reference;
+    for (int threads : {1, 2, 3, 8}) {
+      BuildOptions o;
+      o.normals = mode;
+      o.exactField = field.get();
+      o.central = CentralRule::Interior;
+      o.threads = threads;
+      std::vector<std::uint8_t> bytes = serializeModel(buildModel(g, o));
+      if (reference.empty()) {
+        reference = bytes;
+      } else {
+        EXPECT_EQ(bytes, reference) << threads << " threads";
+      }
+    }
+  }
+}
+
+TEST(ModelBuilder, NonFiniteVoxelsAreRejectedOrSkipped) {
+  DenseGrid g = test::randomVolume(6, 4);
+  g.at(2, 3, 3) = std::nan("");
+  EXPECT_THROW(buildModel(g, BuildOptions{}), Error);
+  BuildOptions o;
+  o.skipNonFinite = true;
+  Model m = buildModel(g, o);
+  for (const auto& c : m.cells) {
+    bool touches = c.index[0] + 1 >= 2 && c.index[0] <= 2 && c.index[1] + 1 >= 3 && c.index[1] <= 3 &&
+                   c.index[2] + 1 >= 3 && c.index[2] <= 3;
+    EXPECT_FALSE(touches);
+  }
+  EXPECT_GT(m.cells.size(), 10u);
+}
