@@ -1,0 +1,28 @@
+#include "extract_stats.h"
+
+#include <nlohmann/json.hpp>
+
+#include "cip/atomic_file.h"
+
+namespace cip {
+
+void writeExtractStats(const std::string& path, const ExtractStats& s, const Model& m) {
+  nlohmann::json j;
+  j["input"] = {{"path", s.input}, {"type", s.inputType}, {"dims", s.dims}};
+  j["isovalue"] = s.isovalue;
+  j["normals"] = s.normals;
+  j["central"] = s.central;
+  j["method"] = toString(m.method);
+  std::array<std::size_t, 5> loops{};
+  for (const auto& c : m.cells) loops[std::min<std::size_t>(c.numLoops, 4)]++;
+  j["model"] = {{"non_empty_cells", m.cells.size()},
+                {"isovertices", m.vertices.size()},
+                {"corners", m.corners.size()},
+                {"loops_per_cell", {{"1", loops[1]}, {"2", loops[2]}, {"3", loops[3]}, {"4", loops[4]}}}};
+  j["seconds"] = s.seconds;
+  j["bytes_written"] = s.bytesWritten;
+  std::string text = j.dump(2) + "\n";
+  writeFileAtomically(path, [&](std::FILE* f) { writeBytes(f, text.data(), text.size()); });
+}
+
+}  // namespace cip

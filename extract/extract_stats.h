@@ -1,0 +1,23 @@
+// Statistics of one extract run, written with --stats-json.
+#pragma once
+#include <map>
+#include <string>
+
+#include "cip/model.h"
+
+namespace cip {
+
+struct ExtractStats {
+  std::string input, inputType;
+  std::array<std::int64_t, 3> dims{};
+  double isovalue = 0;
+  std::string normals, central;
+  std::map<std::string, double> seconds;          ///< per stage
+  std::map<std::string, std::size_t> bytesWritten;  ///< per output file
+};
+
+/// Writes the stats and the model's counts (non-empty cells, isovertices, corners, loops-per-cell histogram) as JSON,
+/// atomically.
+void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
+
+}  // namespace cip

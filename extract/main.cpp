@@ -1,0 +1,178 @@
+// extract: volume -> corner-patch model (.cip), plus optional marching-cubes and patch meshes.
+#include <CLI/CLI.hpp>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <optional>
+
+#include "cip/analytic_field.h"
+#include "cip/error.h"
+#include "cip/model_builder.h"
+#include "cip/model_file.h"
+#include "cip/progress_bar.h"
+#include "cip/raw_reader.h"
+#include "extract_stats.h"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double secondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+struct Options {
+  std::string input, output, mcMesh, patchMesh, statsJson;
+  std::string normals = "gradient", central = "zero";
+  std::optional<double> iso;
+  int resolution = 64, subdiv = 4, threads = 0;
+  bool quiet = false, skipNonFinite = false;
+  // raw input
+  std::string dims, type, endian = "little", grid;
+  std::vector<double> spacing, origin;
+  std::uint64_t offset = 0;
+};
+
+cip::Vec3 vec3(const std::vector<double>& v, const cip::Vec3& fallback, const char* what) {
+  if (v.empty()) return fallback;
+  if (v.size() != 3) throw cip::Error(std::string(what) + " needs three comma-separated numbers");
+  return cip::Vec3(v[0], v[1], v[2]);
+}
+
+int run(const Options& opt) {
+  cip::ExtractStats stats;
+  stats.input = opt.input;
+  auto t0 = Clock::now();
+  cip::DenseGrid grid;
+  std::unique_ptr<cip::AnalyticField> field;
+  std::optional<double> defaultIso;
+  const bool isFile = std::filesystem::exists(opt.input);
+  if (!isFile && (field = cip::makeAnalyticField(opt.input))) {
+    grid = cip::sampleField(*field, opt.resolution, opt.input + " sampled at " + std::to_string(opt.resolution) +
+                                                        " cells per axis over [-1,1]^3");
+    defaultIso = field->defaultIsovalue();
+    stats.inputType = "analytic";
+  } else if (!opt.dims.empty() || !opt.type.empty()) {
+    if (opt.dims.empty() || opt.type.empty()) throw cip::Error("raw input needs both --dims and --type");
+    cip::RawFormat f;
+    f.dims = cip::parseDims(opt.dims);
+    f.type = cip::parseSampleType(opt.type);
+    f.endian = cip::parseEndian(opt.endian);
+    f.spacing = vec3(opt.spacing, cip::Vec3::Ones(), "--spacing");
+    f.origin = vec3(opt.origin, cip::Vec3::Zero(), "--origin");
+    f.offset = opt.offset;
+    grid = cip::readRaw(opt.input, f);
+    stats.inputType = "raw " + opt.type;
+  } else if (!isFile) {
+    std::string names;
+    for (auto& n : cip::analyticFieldNames()) names += (names.empty() ? "" : ", ") + n;
+    throw cip::Error(opt.input + ": no such file, and not an analytic field (" + names + ")");
+  } else {
+    throw cip::Error(opt.input + ": unrecognised input format (use --dims and --type for raw volumes)");
+  }
+  stats.dims = grid.geometry.dims;
+  stats.seconds["read"] = secondsSince(t0);
+
+  cip::BuildOptions build;
+  if (opt.iso) {
+    build.isovalue = *opt.iso;
+  } else if (defaultIso) {
+    build.isovalue = *defaultIso;
+  } else {
+    throw cip::Error(opt.input + ": no default isovalue for this input; give one with --iso");
+  }
+  auto [lo, hi] = grid.range();
+  if (!(build.isovalue > lo && build.isovalue < hi)) {
+    std::fprintf(stderr, "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n",
+                 build.isovalue, lo, hi);
+  }
+  build.normals = cip::parseNormalMode(opt.normals);
+  if (build.normals == cip::NormalMode::Exact && !field) {
+    throw cip::Error("--normals exact needs an analytic field as input (sampled volumes: edge or gradient)");
+  }
+  build.exactField = build.normals == cip::NormalMode::Exact ? field.get() : nullptr;
+  if (opt.central == "zero") {
+    build.central = cip::CentralRule::Zero;
+  } else if (opt.central == "interior") {
+    build.central = cip::CentralRule::Interior;
+  } else {
+    throw cip::Error("unknown --central rule '" + opt.central + "' (expected zero or interior)");
+  }
+  build.skipNonFinite = opt.skipNonFinite;
+  build.threads = opt.threads;
+  stats.isovalue = build.isovalue;
+  stats.normals = opt.normals;
+  stats.central = opt.central;
+
+  auto t1 = Clock::now();
+  cip::Model model;
+  {
+    cip::ProgressBar bar("building", !opt.quiet);
+    build.progress = [&](double f) { bar.update(f); };
+    model = cip::buildModel(grid, build);
+  }
+  stats.seconds["build"] = secondsSince(t1);
+
+  auto t2 = Clock::now();
+  stats.bytesWritten[opt.output] = cip::writeModel(model, opt.output);
+  stats.seconds["write_model"] = secondsSince(t2);
+
+  if (!opt.quiet) {
+    std::fprintf(stderr, "%s: %zu non-empty cells, %zu isovertices, %zu bytes\n", opt.output.c_str(),
+                 model.cells.size(), model.vertices.size(), stats.bytesWritten[opt.output]);
+  }
+  if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, model);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options opt;
+  CLI::App app{
+      "extract: turn a volume into a corner-patch model (.cip).\n"
+      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz, .vdb, or raw with --dims/--type) or an analytic field\n"
+      "name (sphere, torus, gyroid, marschner-lobb, plane) sampled over [-1,1]^3.\n\n"
+      "Examples:\n"
+      "  extract data/blobs.nhdr --iso 0.5 -o blobs.cip\n"
+      "  extract sphere --resolution 64 --normals exact -o sphere.cip\n"
+      "  extract head.raw --dims 64,64,93 --type int16 --spacing 3.2,3.2,1.5 --iso 500 -o head.cip"};
+  app.add_option("input", opt.input, "volume file or analytic field name")->required();
+  app.add_option("-o,--output", opt.output, "model file to write (.cip)")->required();
+  app.add_option("--iso", opt.iso, "isovalue; positive side = value > isovalue (default: 0 for level sets and "
+                                   "the field's own value for analytic fields; required otherwise)");
+  app.add_option("--normals", opt.normals, "corner-plane normals: edge, gradient (default) or exact (analytic only)")
+      ->check(CLI::IsMember({"edge", "gradient", "exact"}));
+  app.add_option("--central", opt.central, "central coefficient: zero (default) or interior (eq. 6 at a reference "
+                                           "surface point inside the cell)")
+      ->check(CLI::IsMember({"zero", "interior"}));
+  app.add_option("--resolution", opt.resolution, "analytic fields: cells per axis over [-1,1]^3 (default 64)")
+      ->check(CLI::Range(1, 4096));
+  app.add_option("--dims", opt.dims, "raw input: grid points per axis, e.g. 64,64,93");
+  app.add_option("--type", opt.type, "raw input: uint8|int8|uint16|int16|uint32|int32|float32|float64");
+  app.add_option("--endian", opt.endian, "raw input: little (default) or big");
+  app.add_option("--spacing", opt.spacing, "raw input: world spacing sx,sy,sz (default 1,1,1)")->delimiter(',');
+  app.add_option("--origin", opt.origin, "raw input: world origin x,y,z of the first sample (default 0,0,0)")
+      ->delimiter(',');
+  app.add_option("--offset", opt.offset, "raw input: bytes to skip before the first sample (default 0)");
+  app.add_option("--grid", opt.grid, "OpenVDB input: grid name (default: the first float or double grid)");
+  app.add_option("--mc-mesh", opt.mcMesh, "also write the marching-cubes mesh on the same grid (binary PLY)");
+  app.add_option("--patch-mesh", opt.patchMesh, "also write a triangle mesh of the corner-patch surface (binary PLY)");
+  app.add_option("--subdiv", opt.subdiv, "patch mesh: samples per cell edge (default 4)")->check(CLI::Range(1, 64));
+  app.add_option("--stats-json", opt.statsJson, "write run statistics as JSON");
+  app.add_option("--threads", opt.threads, "worker threads (default: all)")->check(CLI::Range(0, 1024));
+  app.add_flag("--skip-nonfinite", opt.skipNonFinite, "leave cells with NaN/Inf voxels empty instead of failing");
+  app.add_flag("-q,--quiet", opt.quiet, "no progress bar or summary on stderr");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  try {
+    return run(opt);
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "extract: error: out of memory\n");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "extract: error: %s\n", e.what());
+  }
+  return 1;
+}

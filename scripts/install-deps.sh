@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Installs the Debian packages cip needs to build and test, if any is missing (fast when all are present).
+# Usage: bash scripts/install-deps.sh [extra-package ...]   (run as root, or with sudo available)
+set -euo pipefail
+packages=(cmake ninja-build g++ pkg-config
+  libeigen3-dev libtbb-dev zlib1g-dev libcli11-dev nlohmann-json3-dev
+  libopenvdb-dev libboost-iostreams-dev libembree-dev libopenimageio-dev
+  libgtest-dev libgmock-dev libbenchmark-dev "$@")
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  exit 0
+fi
+echo "installing: ${missing[*]}" >&2
+sudo=""
+[ "$(id -u)" -eq 0 ] || sudo="sudo"
+export DEBIAN_FRONTEND=noninteractive
+$sudo apt-get update -qq
+$sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
