@@ -9,11 +9,12 @@
 namespace cip {
 
 std::string MeshTopology::describe() const {
-  return "vertices " + std::to_string(usedVertices) + ", edges " + std::to_string(edges) + ", boundary edges " +
-         std::to_string(boundaryEdges) + ", non-manifold edges " + std::to_string(nonManifoldEdges) +
-         ", misoriented edges " + std::to_string(misorientedEdges) + ", degenerate triangles " +
-         std::to_string(degenerateTriangles) + ", bad indices " + std::to_string(badIndices) + ", components " +
-         std::to_string(components) + ", Euler characteristic " + std::to_string(eulerCharacteristic);
+  return "vertices " + std::to_string(usedVertices) + ", edges " + std::to_string(edges) +
+         ", boundary edges " + std::to_string(boundaryEdges) + ", non-manifold edges " +
+         std::to_string(nonManifoldEdges) + ", misoriented edges " + std::to_string(misorientedEdges) +
+         ", degenerate triangles " + std::to_string(degenerateTriangles) + ", bad indices " +
+         std::to_string(badIndices) + ", components " + std::to_string(components) +
+         ", Euler characteristic " + std::to_string(eulerCharacteristic);
 }
 
 MeshTopology analyseTopology(const TriangleMesh& mesh) {
@@ -87,7 +88,8 @@ void validateMesh(const TriangleMesh& mesh, const std::string& name) {
                 std::to_string(mesh.triangles.size()) + " triangles");
   }
   for (std::size_t v = 0; v < nv; ++v) {
-    if (!mesh.positions[v].allFinite()) throw Error(name + ": vertex " + std::to_string(v) + " is not finite");
+    if (!mesh.positions[v].allFinite())
+      throw Error(name + ": vertex " + std::to_string(v) + " is not finite");
   }
   for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
     for (std::uint32_t v : mesh.triangles[i]) {
