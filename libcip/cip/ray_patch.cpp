@@ -12,9 +12,9 @@ namespace {
 constexpr double kEps = std::numeric_limits<double>::epsilon();
 using Coefficients = std::array<double, RayPolynomial::kMaxDegree + 1>;
 
-/// In place: b (degree m, Bernstein on [a,b]) times the linear function with end values (l0, l1); result degree m+1.
-/// c_k = (l0 b_k (m+1-k) + l1 b_{k-1} k) / (m+1); the end coefficients are plain products so that they equal the
-/// factored evaluation at the interval ends bit for bit.
+/// In place: b (degree m, Bernstein on [a,b]) times the linear function with end values (l0, l1); result
+/// degree m+1. c_k = (l0 b_k (m+1-k) + l1 b_{k-1} k) / (m+1); the end coefficients are plain products so that
+/// they equal the factored evaluation at the interval ends bit for bit.
 void multiplyLinear(Coefficients& b, int m, double l0, double l1) {
   const double inv = 1.0 / (m + 1);
   b[m + 1] = l1 * b[m];
@@ -29,7 +29,9 @@ void elevate(Coefficients& b, int m) {
   for (int k = m; k >= 1; --k) b[k] = (b[k] * (m + 1 - k) + b[k - 1] * k) * inv;
 }
 
-int sign(double x) { return (x > 0) - (x < 0); }
+int sign(double x) {
+  return (x > 0) - (x < 0);
+}
 
 /// Number of sign changes of b[0..n], zeros ignored.
 int signChanges(const Coefficients& b, int n) {
@@ -43,8 +45,9 @@ int signChanges(const Coefficients& b, int n) {
   return changes;
 }
 
-/// The single root of p in [lo, hi], where p(lo) and p(hi) are non-zero with opposite signs: Newton steps kept
-/// inside the shrinking bracket, bisection whenever a step would leave it or converge slower than bisection.
+/// The single root of p in [lo, hi], where p(lo) and p(hi) are non-zero with opposite signs: Newton steps
+/// kept inside the shrinking bracket, bisection whenever a step would leave it or converge slower than
+/// bisection.
 double refineBracketed(const RayPolynomial& p, double lo, double hi, double valueLo, double tolerance,
                        int maxIterations) {
   // Orient so that g = s * p is negative at lo and positive at hi.
@@ -156,8 +159,8 @@ void RayPolynomial::valueAndDerivative(double t, double& value, double& derivati
 }
 
 double RayPolynomial::roundingBound(double t) const {
-  // Each factor value carries an absolute error of about eps (|offset| + |slope t|), which may be large relative to
-  // the value itself near the factor's zero; bound every product by the perturbed magnitudes.
+  // Each factor value carries an absolute error of about eps (|offset| + |slope t|), which may be large
+  // relative to the value itself near the factor's zero; bound every product by the perturbed magnitudes.
   std::array<double, kMaxFactors> mag, pert;
   for (int f = 0; f < numFactors_; ++f) {
     const double v = std::abs(factors_[f](t));
@@ -241,14 +244,16 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
     }
     if (changes == 1 && b[n] != 0) {
       ++st.refinements;
-      return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations), RootKind::Bracketed};
+      return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations),
+                  RootKind::Bracketed};
     }
     const double mid = lo + 0.5 * (hi - lo);
     if (hi - lo <= minWidth || top + 2 > kStack || !(mid > lo && mid < hi)) {
       // Depth limit: the roots here cannot be separated in double precision.
       if (sign(b[0]) * sign(b[n]) < 0) {  // odd count: a root exists by the intermediate value theorem
         ++st.refinements;
-        return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations), RootKind::Bracketed};
+        return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations),
+                    RootKind::Bracketed};
       }
       if (b[n] == 0) return Root{hi, RootKind::EndPoint};
       for (double x : {mid, lo, hi}) {
@@ -298,8 +303,8 @@ RayPolynomial rayPolynomial(const CornerPatch& patch, const Vec3& origin, const 
   return poly;
 }
 
-bool clipRayToCell(const Vec3& origin, const Vec3& direction, double tMin, double tMax, double& t0, double& t1,
-                   double pad) {
+bool clipRayToCell(const Vec3& origin, const Vec3& direction, double tMin, double tMax, double& t0,
+                   double& t1, double pad) {
   double lo = tMin, hi = tMax;
   for (int a = 0; a < 3; ++a) {
     const double boxLo = -pad, boxHi = 1.0 + pad;
