@@ -1,0 +1,229 @@
+#include "cip/surface_fidelity.h"
+
+#include <Eigen/Geometry>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace cip {
+
+namespace {
+
+constexpr double kRadToDeg = 57.29577951308232;
+
+Vec3 project(const ScalarField& f, double iso, Vec3 p) {
+  for (int it = 0; it < 30; ++it) {
+    double v = f.value(p) - iso;
+    Vec3 g = f.gradient(p);
+    double g2 = g.squaredNorm();
+    if (!(g2 > 0)) break;
+    Vec3 step = v / g2 * g;
+    p -= step;
+    if (step.norm() < 1e-13) break;
+  }
+  return p;
+}
+
+Mat3 fieldHessian(const ScalarField& f, const Vec3& p, double h) {
+  Mat3 m;
+  for (int i = 0; i < 3; ++i) {
+    Vec3 e = Vec3::Unit(i) * h;
+    m.col(i) = (f.gradient(p + e) - f.gradient(p - e)) / (2 * h);
+  }
+  return 0.5 * (m + m.transpose());
+}
+
+// The k x k lines along `axis` through a unit cell: cell-local (u, v) offsets along the two other axes.
+double lineOffset(int a, int k) { return (a + 0.5) / k; }
+
+template <class PerCell>
+std::vector<SurfaceSample> collect(std::size_t cells, PerCell&& perCell) {
+  std::vector<std::vector<SurfaceSample>> per(cells);
+  tbb::parallel_for(std::size_t(0), cells, [&](std::size_t c) { perCell(c, per[c]); });
+  std::vector<SurfaceSample> out;
+  for (auto& v : per) out.insert(out.end(), v.begin(), v.end());
+  return out;
+}
+
+}  // namespace
+
+double meanCurvature(const Vec3& g, const Mat3& h) {
+  double n = g.norm();
+  if (!(n > 0)) return 0;
+  return (g.squaredNorm() * h.trace() - g.dot(h * g)) / (2 * n * n * n);
+}
+
+void patchDerivativesToWorld(const Vec3& spacing, Vec3& gradient, Mat3& hessian) {
+  Vec3 inv = spacing.cwiseInverse();
+  gradient = gradient.cwiseProduct(inv);
+  hessian = inv.asDiagonal() * hessian * inv.asDiagonal();
+}
+
+std::vector<SurfaceSample> samplePatchSurface(const Model& model, int k) {
+  constexpr int kSteps = 32;
+  return collect(model.cells.size(), [&](std::size_t c, std::vector<SurfaceSample>& out) {
+    CornerPatch p = model.patch(c);
+    Vec3 origin = model.cellOrigin(c);
+    for (int axis = 0; axis < 3; ++axis) {
+      int ua = (axis + 1) % 3, va = (axis + 2) % 3;
+      for (int a = 0; a < k; ++a)
+        for (int b = 0; b < k; ++b) {
+          Vec3 x = Vec3::Zero();
+          x[ua] = lineOffset(a, k);
+          x[va] = lineOffset(b, k);
+          auto at = [&](double t) {
+            Vec3 y = x;
+            y[axis] = t;
+            return y;
+          };
+          double prevT = 0, prevF = p.value(at(0));
+          for (int s = 1; s <= kSteps; ++s) {
+            double t = static_cast<double>(s) / kSteps, f = p.value(at(t));
+            if ((f > 0) != (prevF > 0)) {
+              double lo = prevT, hi = t, flo = prevF;
+              for (int it = 0; it < 60; ++it) {
+                double mid = 0.5 * (lo + hi), fm = p.value(at(mid));
+                if ((fm > 0) == (flo > 0)) {
+                  lo = mid;
+                  flo = fm;
+                } else {
+                  hi = mid;
+                }
+              }
+              Vec3 local = at(0.5 * (lo + hi));
+              PatchDerivatives d = p.derivatives(local);
+              patchDerivativesToWorld(model.geometry.spacing, d.gradient, d.hessian);
+              SurfaceSample smp;
+              smp.world = model.geometry.indexToWorld(origin + local);
+              smp.normal = d.gradient.norm() > 0 ? Vec3(d.gradient.normalized()) : Vec3::UnitX();
+              smp.meanCurvature = meanCurvature(d.gradient, d.hessian);
+              smp.cell = static_cast<std::int64_t>(c);
+              out.push_back(smp);
+            }
+            prevT = t;
+            prevF = f;
+          }
+        }
+    }
+  });
+}
+
+std::vector<SurfaceSample> sampleMeshSurface(const TriangleMesh& mesh, const Model& model, int k,
+                                             bool vertexNormals) {
+  // Triangles per cell.
+  std::vector<std::vector<std::uint32_t>> byCell(model.cells.size());
+  for (std::uint32_t t = 0; t < mesh.triangles.size(); ++t) {
+    std::int64_t cell = -1;
+    if (mesh.triangleCell.size() == mesh.triangles.size()) {
+      cell = mesh.triangleCell[t];
+    } else {
+      const auto& tri = mesh.triangles[t];
+      Vec3 centroid = (mesh.positions[tri[0]] + mesh.positions[tri[1]] + mesh.positions[tri[2]]) / 3.0;
+      Vec3 idx = model.geometry.worldToIndex(centroid);
+      cell = model.findCell(static_cast<std::int64_t>(std::floor(idx.x())), static_cast<std::int64_t>(std::floor(idx.y())),
+                            static_cast<std::int64_t>(std::floor(idx.z())));
+    }
+    if (cell >= 0 && static_cast<std::size_t>(cell) < byCell.size()) byCell[cell].push_back(t);
+  }
+  const bool useVertexNormals = vertexNormals && mesh.hasNormals();
+  return collect(model.cells.size(), [&](std::size_t c, std::vector<SurfaceSample>& out) {
+    Vec3 origin = model.cellOrigin(c);
+    for (std::uint32_t t : byCell[c]) {
+      const auto& tri = mesh.triangles[t];
+      Vec3 q[3];
+      for (int i = 0; i < 3; ++i) q[i] = model.geometry.worldToIndex(mesh.positions[tri[i]]) - origin;
+      Vec3 facet = (mesh.positions[tri[1]] - mesh.positions[tri[0]]).cross(mesh.positions[tri[2]] - mesh.positions[tri[0]]);
+      if (!(facet.norm() > 0)) continue;
+      for (int axis = 0; axis < 3; ++axis) {
+        int ua = (axis + 1) % 3, va = (axis + 2) % 3;
+        for (int a = 0; a < k; ++a)
+          for (int b = 0; b < k; ++b) {
+            double u = lineOffset(a, k), v = lineOffset(b, k);
+            // Barycentric coordinates of (u, v) in the triangle projected along `axis`.
+            double x0 = q[0][ua], y0 = q[0][va], x1 = q[1][ua], y1 = q[1][va], x2 = q[2][ua], y2 = q[2][va];
+            double det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0);
+            if (std::abs(det) < 1e-300) continue;
+            double l1 = ((u - x0) * (y2 - y0) - (x2 - x0) * (v - y0)) / det;
+            double l2 = ((x1 - x0) * (v - y0) - (u - x0) * (y1 - y0)) / det;
+            double l0 = 1 - l1 - l2;
+            // Half-open rule on shared edges is not needed for statistics; skip only clearly outside points.
+            if (l0 < 0 || l1 < 0 || l2 < 0) continue;
+            SurfaceSample s;
+            s.world = l0 * mesh.positions[tri[0]] + l1 * mesh.positions[tri[1]] + l2 * mesh.positions[tri[2]];
+            if (useVertexNormals) {
+              Vec3 n = l0 * mesh.normals[tri[0]] + l1 * mesh.normals[tri[1]] + l2 * mesh.normals[tri[2]];
+              s.normal = n.norm() > 0 ? Vec3(n.normalized()) : Vec3(facet.normalized());
+            } else {
+              s.normal = facet.normalized();
+            }
+            s.cell = static_cast<std::int64_t>(c);
+            out.push_back(s);
+          }
+      }
+    }
+  });
+}
+
+ErrorSummary summarize(std::vector<double> e) {
+  ErrorSummary s;
+  s.count = e.size();
+  if (e.empty()) return s;
+  double sum = 0;
+  for (double x : e) sum += x;
+  s.mean = sum / static_cast<double>(e.size());
+  std::size_t i99 = static_cast<std::size_t>(std::floor(0.99 * static_cast<double>(e.size() - 1)));
+  std::nth_element(e.begin(), e.begin() + static_cast<std::ptrdiff_t>(i99), e.end());
+  s.p99 = e[i99];
+  s.max = *std::max_element(e.begin(), e.end());
+  return s;
+}
+
+FidelityMeasures measureFidelity(const std::vector<SurfaceSample>& samples, const ScalarField& truth, double iso,
+                                 double voxelSize, bool withCurvature) {
+  std::vector<double> dist(samples.size()), angle(samples.size()), curv(withCurvature ? samples.size() : 0);
+  tbb::parallel_for(std::size_t(0), samples.size(), [&](std::size_t i) {
+    const SurfaceSample& s = samples[i];
+    Vec3 p = project(truth, iso, s.world);
+    dist[i] = (p - s.world).norm() / voxelSize;
+    Vec3 g = truth.gradient(p);
+    double c = g.norm() > 0 ? std::abs(g.normalized().dot(s.normal)) : 1.0;
+    angle[i] = std::acos(std::min(1.0, c)) * kRadToDeg;
+    if (withCurvature) {
+      double h = 1e-5;
+      double trueH = meanCurvature(g, fieldHessian(truth, p, h));
+      curv[i] = std::abs(s.meanCurvature - trueH) * voxelSize;
+    }
+  });
+  FidelityMeasures m;
+  m.distanceVoxels = summarize(std::move(dist));
+  m.normalDegrees = summarize(std::move(angle));
+  if (withCurvature) m.curvatureError = summarize(std::move(curv));
+  return m;
+}
+
+std::int64_t countSpuriousCells(const Model& model, const ScalarField& truth, int lattice, double margin) {
+  const double voxel = model.geometry.spacing.minCoeff();
+  const double iso = model.isovalue;
+  std::vector<std::uint8_t> bad(model.cells.size(), 0);
+  tbb::parallel_for(std::size_t(0), model.cells.size(), [&](std::size_t c) {
+    CornerPatch p = model.patch(c);
+    Vec3 origin = model.cellOrigin(c);
+    for (int a = 0; a < lattice && !bad[c]; ++a)
+      for (int b = 0; b < lattice && !bad[c]; ++b)
+        for (int d = 0; d < lattice && !bad[c]; ++d) {
+          Vec3 local((a + 0.5) / lattice, (b + 0.5) / lattice, (d + 0.5) / lattice);
+          Vec3 w = model.geometry.indexToWorld(origin + local);
+          double f = truth.value(w) - iso;
+          double v = p.value(local);
+          if ((f > 0) == (v > 0) || v == 0) continue;
+          // Disagreement: count it only far from the true surface.
+          if ((project(truth, iso, w) - w).norm() > margin * voxel) bad[c] = 1;
+        }
+  });
+  std::int64_t n = 0;
+  for (auto b : bad) n += b;
+  return n;
+}
+
+}  // namespace cip
