@@ -39,8 +39,8 @@ DenseGrid readRaw(const std::string& path, const RawFormat& format, std::size_t 
     std::string dims = std::to_string(format.dims[0]) + "x" + std::to_string(format.dims[1]) + "x" +
                        std::to_string(format.dims[2]);
     throw Error(path + ": file is " + std::to_string(actual) + " bytes, expected " +
-                (format.offset ? std::to_string(format.offset) + " + " : std::string()) + std::to_string(dataBytes) +
-                " for " + dims + " " + toString(format.type) + " samples (" +
+                (format.offset ? std::to_string(format.offset) + " + " : std::string()) +
+                std::to_string(dataBytes) + " for " + dims + " " + toString(format.type) + " samples (" +
                 (actual < expected ? std::to_string(expected - actual) + " bytes short)"
                                    : std::to_string(actual - expected) + " bytes too many)"));
   }
@@ -50,7 +50,8 @@ DenseGrid readRaw(const std::string& path, const RawFormat& format, std::size_t 
   grid.geometry.origin = format.origin;
   FileByteSource source(path, format.offset);
   readSamplesInto(source, format.type, format.endian, grid);
-  std::string name = path.substr(path.find_last_of('/') == std::string::npos ? 0 : path.find_last_of('/') + 1);
+  std::string name =
+      path.substr(path.find_last_of('/') == std::string::npos ? 0 : path.find_last_of('/') + 1);
   grid.description = name + " (raw " + toString(format.type) + " " + std::to_string(format.dims[0]) + "x" +
                      std::to_string(format.dims[1]) + "x" + std::to_string(format.dims[2]) + ")";
   return grid;

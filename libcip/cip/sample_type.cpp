@@ -48,7 +48,9 @@ const char* toString(SampleType type) {
   return "unknown";
 }
 
-const char* toString(Endian endian) { return endian == Endian::Little ? "little" : "big"; }
+const char* toString(Endian endian) {
+  return endian == Endian::Little ? "little" : "big";
+}
 
 namespace {
 
@@ -156,7 +158,8 @@ Endian hostEndian() {
   return first == 1 ? Endian::Little : Endian::Big;
 }
 
-void decodeSamples(const unsigned char* bytes, std::size_t count, SampleType type, Endian endian, double* out) {
+void decodeSamples(const unsigned char* bytes, std::size_t count, SampleType type, Endian endian,
+                   double* out) {
   const bool swap = endian != hostEndian();
   switch (type) {
     case SampleType::UInt8:

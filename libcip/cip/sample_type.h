@@ -1,8 +1,8 @@
 /// @file sample_type.h
 /// @brief Voxel sample types and byte orders found in volume files, and their conversion to double.
 ///
-/// The volume readers (raw, NRRD, NIfTI) all store samples as double in a DenseGrid; this file is the one place that
-/// knows how many bytes each stored type has and how to decode a run of them in either byte order.
+/// The volume readers (raw, NRRD, NIfTI) all store samples as double in a DenseGrid; this file is the one
+/// place that knows how many bytes each stored type has and how to decode a run of them in either byte order.
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -23,8 +23,9 @@ const char* toString(SampleType type);
 const char* toString(Endian endian);
 
 /// Parses a sample type name: the canonical names above and the usual C / NRRD spellings ("uchar",
-/// "unsigned char", "uint8_t", "signed char", "short", "ushort", "unsigned short int", "int", "uint", "float",
-/// "double", ...). Case-insensitive. Throws cip::Error naming the text and listing the canonical names otherwise.
+/// "unsigned char", "uint8_t", "signed char", "short", "ushort", "unsigned short int", "int", "uint",
+/// "float", "double", ...). Case-insensitive. Throws cip::Error naming the text and listing the canonical
+/// names otherwise.
 SampleType parseSampleType(const std::string& text);
 /// Parses "little" or "big" (case-insensitive); throws cip::Error otherwise.
 Endian parseEndian(const std::string& text);
@@ -32,8 +33,10 @@ Endian parseEndian(const std::string& text);
 /// Byte order of this machine.
 Endian hostEndian();
 
-/// Decodes `count` consecutive samples of `type` stored in `endian` byte order at `bytes` (no alignment needed)
-/// into `out[0..count)`. Integers convert exactly; float32 widens exactly; NaN and infinities are kept.
-void decodeSamples(const unsigned char* bytes, std::size_t count, SampleType type, Endian endian, double* out);
+/// Decodes `count` consecutive samples of `type` stored in `endian` byte order at `bytes` (no alignment
+/// needed) into `out[0..count)`. Integers convert exactly; float32 widens exactly; NaN and infinities are
+/// kept.
+void decodeSamples(const unsigned char* bytes, std::size_t count, SampleType type, Endian endian,
+                   double* out);
 
 }  // namespace cip

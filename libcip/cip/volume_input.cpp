@@ -43,7 +43,8 @@ bool endsWithNoCase(const std::string& path, const std::string& suffix) {
   if (path.size() < suffix.size()) return false;
   return std::equal(suffix.begin(), suffix.end(), path.end() - static_cast<std::ptrdiff_t>(suffix.size()),
                     [](char a, char b) {
-                      return std::tolower(static_cast<unsigned char>(a)) == std::tolower(static_cast<unsigned char>(b));
+                      return std::tolower(static_cast<unsigned char>(a)) ==
+                             std::tolower(static_cast<unsigned char>(b));
                     });
 }
 
@@ -62,7 +63,8 @@ std::uint64_t ByteSource::skip(std::uint64_t n) {
 void ByteSource::readExactly(void* buffer, std::size_t n, const std::string& what) {
   std::size_t got = read(buffer, n);
   if (got < n) {
-    throw Error(path_ + ": " + what + " ends after " + std::to_string(got) + " of " + std::to_string(n) + " bytes");
+    throw Error(path_ + ": " + what + " ends after " + std::to_string(got) + " of " + std::to_string(n) +
+                " bytes");
   }
 }
 
@@ -70,7 +72,8 @@ void ByteSource::expectEnd(const std::string& what) {
   unsigned char extra;
   std::uint64_t declared = position_;
   if (read(&extra, 1) != 0) {
-    throw Error(path_ + ": " + what + " continues past its declared size of " + std::to_string(declared) + " bytes");
+    throw Error(path_ + ": " + what + " continues past its declared size of " + std::to_string(declared) +
+                " bytes");
   }
 }
 
@@ -168,14 +171,16 @@ std::int64_t checkVolumeDims(const std::string& path, const std::array<std::int6
                              std::size_t bytesPerSample, std::size_t maxBytes) {
   for (auto d : dims) {
     if (d < 1) {
-      throw Error(path + ": invalid volume dimensions " + std::to_string(dims[0]) + "x" + std::to_string(dims[1]) +
-                  "x" + std::to_string(dims[2]) + " (every extent must be at least 1)");
+      throw Error(path + ": invalid volume dimensions " + std::to_string(dims[0]) + "x" +
+                  std::to_string(dims[1]) + "x" + std::to_string(dims[2]) +
+                  " (every extent must be at least 1)");
     }
   }
   std::int64_t count = 0;
   try {
     count = checkedVolumeSize(dims, sizeof(double), maxBytes);
-    checkedVolumeSize(dims, std::max<std::size_t>(bytesPerSample, 1), std::numeric_limits<std::size_t>::max());
+    checkedVolumeSize(dims, std::max<std::size_t>(bytesPerSample, 1),
+                      std::numeric_limits<std::size_t>::max());
   } catch (const Error& e) {
     throw Error(path + ": " + e.what());
   }
@@ -194,8 +199,8 @@ void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGr
     if (got < count * size) {
       std::uint64_t have = static_cast<std::uint64_t>(done) * size + got;
       std::uint64_t need = static_cast<std::uint64_t>(total) * size;
-      throw Error(source.path() + ": data ends after " + std::to_string(have) + " of " + std::to_string(need) +
-                  " bytes (" + std::to_string(need - have) + " bytes short)");
+      throw Error(source.path() + ": data ends after " + std::to_string(have) + " of " +
+                  std::to_string(need) + " bytes (" + std::to_string(need - have) + " bytes short)");
     }
     decodeSamples(slab.data(), count, type, endian, grid.values.data() + done);
     done += count;

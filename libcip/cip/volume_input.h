@@ -1,11 +1,11 @@
 /// @file volume_input.h
-/// @brief Plumbing shared by the volume readers: files opened with clear errors, sequential byte sources over plain
-/// or gzip/zlib-compressed data, checked volume sizes, and streaming sample decoding into a DenseGrid.
+/// @brief Plumbing shared by the volume readers: files opened with clear errors, sequential byte sources over
+/// plain or gzip/zlib-compressed data, checked volume sizes, and streaming sample decoding into a DenseGrid.
 ///
-/// Samples are read in slabs of a few MiB and decoded straight into the grid's double values, so a reader never holds
-/// a second full copy of the volume. Compressed data is inflated through a fixed-size buffer; readers ask for exactly
-/// the declared number of bytes and then check with expectEnd() that nothing follows, which inflates at most one
-/// more byte: a stream that expands beyond its declared size is stopped there.
+/// Samples are read in slabs of a few MiB and decoded straight into the grid's double values, so a reader
+/// never holds a second full copy of the volume. Compressed data is inflated through a fixed-size buffer;
+/// readers ask for exactly the declared number of bytes and then check with expectEnd() that nothing follows,
+/// which inflates at most one more byte: a stream that expands beyond its declared size is stopped there.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -18,7 +18,8 @@
 
 namespace cip {
 
-/// Size of a regular file in bytes; throws cip::Error "<path>: cannot open: <reason>" if it is missing or not a file.
+/// Size of a regular file in bytes; throws cip::Error "<path>: cannot open: <reason>" if it is missing or not
+/// a file.
 std::uint64_t fileSizeOf(const std::string& path);
 
 /// True when `path` ends with `suffix`, ignoring ASCII case.
@@ -77,14 +78,14 @@ class GzipByteSource : public ByteSource {
   bool streamEnd_ = false;
 };
 
-/// Checks the dims of a volume before anything is allocated: every extent >= 1, the point count and its double
-/// storage fit 64 bits and `maxBytes`, and the stored data (count * bytesPerSample) fits 64 bits. Returns the number
-/// of points. Errors are "<path>: ..." and name the dims and the size.
+/// Checks the dims of a volume before anything is allocated: every extent >= 1, the point count and its
+/// double storage fit 64 bits and `maxBytes`, and the stored data (count * bytesPerSample) fits 64 bits.
+/// Returns the number of points. Errors are "<path>: ..." and name the dims and the size.
 std::int64_t checkVolumeDims(const std::string& path, const std::array<std::int64_t, 3>& dims,
                              std::size_t bytesPerSample, std::size_t maxBytes);
 
-/// Fills the already allocated `grid.values` with samples read from `source`, x fastest, in slabs of a few MiB.
-/// Throws "<path>: data ends after X of N bytes" when the source runs out early.
+/// Fills the already allocated `grid.values` with samples read from `source`, x fastest, in slabs of a few
+/// MiB. Throws "<path>: data ends after X of N bytes" when the source runs out early.
 void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGrid& grid);
 
 }  // namespace cip

@@ -1,0 +1,285 @@
+#include "cip/vdb_reader.h"
+
+#include <openvdb/openvdb.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <set>
+
+#include "cip/error.h"
+#include "cip/volume_input.h"
+
+namespace cip {
+
+namespace {
+
+void initializeOpenVdb() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+std::string baseName(const std::string& path) {
+  std::size_t slash = path.find_last_of('/');
+  return slash == std::string::npos ? path : path.substr(slash + 1);
+}
+
+std::string gridClassName(openvdb::GridClass c) {
+  switch (c) {
+    case openvdb::GRID_LEVEL_SET:
+      return "level set";
+    case openvdb::GRID_FOG_VOLUME:
+      return "fog volume";
+    case openvdb::GRID_STAGGERED:
+      return "staggered";
+    default:
+      return "unknown";
+  }
+}
+
+std::vector<VdbGridInfo> gridInfos(openvdb::io::File& file) {
+  std::vector<VdbGridInfo> out;
+  openvdb::GridPtrVecPtr grids = file.readAllGridMetadata();
+  for (const auto& g : *grids)
+    out.push_back({g->getName(), g->valueType(), gridClassName(g->getGridClass())});
+  return out;
+}
+
+std::string listing(const std::vector<VdbGridInfo>& infos) {
+  std::string s;
+  for (const auto& g : infos) s += (s.empty() ? "" : ", ") + ("'" + g.name + "' (" + g.valueType + ")");
+  return s.empty() ? "none" : s;
+}
+
+using BrickKey = std::array<std::int64_t, 3>;
+
+template <typename GridT>
+SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadOptions& options,
+                      const std::string& typeName) {
+  const std::string name = grid.getName();
+  // Placement: axis-aligned linear transform with positive scales.
+  const openvdb::math::Transform& xf = grid.transform();
+  if (!xf.isLinear())
+    throw Error(path + ": grid '" + name + "' has a non-linear (frustum) transform; not supported");
+  const openvdb::math::Mat4d m = xf.baseMap()->getAffineMap()->getMat4();
+  Vec3 spacing;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      if (i != j && std::abs(m[i][j]) > 1e-9 * std::abs(m[i][i])) {
+        throw Error(path + ": grid '" + name +
+                    "' has a rotated or sheared transform; only axis-aligned grids are supported");
+      }
+    }
+    if (!(m[i][i] > 0) || !std::isfinite(m[i][i])) {
+      throw Error(path + ": grid '" + name +
+                  "' has a zero, negative (mirrored) or invalid voxel size on axis " + std::to_string(i));
+    }
+    spacing[i] = m[i][i];
+  }
+
+  const openvdb::CoordBBox active = grid.evalActiveVoxelBoundingBox();
+  if (active.empty()) throw Error(path + ": grid '" + name + "' has no active voxels");
+  // Global grid: the active box plus one point on every side (all cells with an active corner lie inside).
+  std::array<std::int64_t, 3> lo, dims;
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = static_cast<std::int64_t>(active.min()[a]) - 1;
+    dims[a] = static_cast<std::int64_t>(active.max()[a]) + 1 - lo[a] + 1;
+  }
+  try {
+    // Grid keys (point index * 3 + axis) must fit 64 bits.
+    checkedVolumeSize(dims, 3, std::numeric_limits<std::size_t>::max());
+  } catch (const Error& e) {
+    throw Error(path + ": grid '" + name + "': " + e.what());
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (dims[a] > (std::int64_t(1) << 32)) {
+      throw Error(path + ": grid '" + name + "' spans " + std::to_string(dims[a]) + " voxels on axis " +
+                  std::to_string(a) + ", more than a model can index");
+    }
+  }
+
+  const std::int64_t B = options.brickCells;
+  if (B < 1) throw Error(path + ": brick size must be at least 1 cell");
+  std::array<std::int64_t, 3> cells, nb;
+  for (int a = 0; a < 3; ++a) {
+    cells[a] = dims[a] - 1;
+    nb[a] = (cells[a] + B - 1) / B;
+  }
+
+  // Bricks owning a cell with an active corner: an active point p (global) is a corner of cells p-1 and p per
+  // axis.
+  std::set<BrickKey> keys;
+  BrickKey last{-1, -1, -1};
+  auto addRange = [&](const std::array<std::int64_t, 3>& pmin, const std::array<std::int64_t, 3>& pmax) {
+    std::array<std::int64_t, 3> b0, b1;
+    for (int a = 0; a < 3; ++a) {
+      b0[a] = std::max<std::int64_t>(pmin[a] - 1, 0) / B;
+      b1[a] = std::min<std::int64_t>(pmax[a], cells[a] - 1) / B;
+    }
+    if (b0 == b1) {
+      if (b0 != last) keys.insert(b0);
+      last = b0;
+      return;
+    }
+    for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
+      for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
+        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) keys.insert({x, y, z});
+  };
+  for (auto it = grid.cbeginValueOn(); it; ++it) {
+    openvdb::CoordBBox box;
+    if (it.isVoxelValue()) {
+      box = openvdb::CoordBBox(it.getCoord(), it.getCoord());
+    } else {
+      it.getBoundingBox(box);
+      box.intersect(active);
+    }
+    std::array<std::int64_t, 3> pmin, pmax;
+    for (int a = 0; a < 3; ++a) {
+      pmin[a] = static_cast<std::int64_t>(box.min()[a]) - lo[a];
+      pmax[a] = static_cast<std::int64_t>(box.max()[a]) - lo[a];
+    }
+    addRange(pmin, pmax);
+    if (keys.size() > (std::size_t(1) << 26)) break;  // the byte check below reports it
+  }
+
+  // Brick extents, then a size check before allocating anything.
+  SparseVolume volume;
+  volume.bricks.reserve(keys.size());
+  std::uint64_t totalPoints = 0;
+  for (const BrickKey& k : keys) {
+    GridBrick brick;
+    std::array<std::int64_t, 3> bdims;
+    for (int a = 0; a < 3; ++a) {
+      std::int64_t c0 = k[a] * B, c1 = std::min(c0 + B, cells[a]);  // owned cells [c0, c1)
+      std::int64_t apronLo = c0 > 0 ? 1 : 0;
+      std::int64_t apronHi = c1 + 1 < dims[a] ? 1 : 0;
+      brick.offset[a] = c0 - apronLo;
+      brick.cellBegin[a] = apronLo;
+      brick.cellEnd[a] = apronLo + (c1 - c0);
+      bdims[a] = (c1 - c0) + 1 + apronLo + apronHi;
+    }
+    totalPoints += static_cast<std::uint64_t>(bdims[0] * bdims[1] * bdims[2]);
+    volume.bricks.push_back(brick);
+  }
+  if (keys.size() > (std::size_t(1) << 26) || totalPoints > options.maxBytes / sizeof(double)) {
+    throw Error(path + ": grid '" + name + "' needs " +
+                (keys.size() > (std::size_t(1) << 26)
+                     ? std::string("more than 67108864 bricks")
+                     : std::to_string((totalPoints * sizeof(double)) >> 20) + " MiB") +
+                " of dense bricks, more than the " + std::to_string(options.maxBytes >> 20) + " MiB allowed");
+  }
+
+  volume.grids.resize(volume.bricks.size());
+  for (std::size_t b = 0; b < volume.bricks.size(); ++b) {
+    GridBrick& brick = volume.bricks[b];
+    std::array<std::int64_t, 3> bdims;
+    for (int a = 0; a < 3; ++a) {
+      std::int64_t c1 = brick.offset[a] + brick.cellEnd[a];
+      bdims[a] = brick.cellEnd[a] + 1 + (c1 + 1 < dims[a] ? 1 : 0);
+    }
+    DenseGrid& g = volume.grids[b];
+    g.allocate(bdims, options.maxBytes);
+    g.geometry.spacing = spacing;
+    brick.grid = &g;
+  }
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, volume.bricks.size()),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      auto acc = grid.getConstAccessor();
+                      for (std::size_t b = r.begin(); b != r.end(); ++b) {
+                        const GridBrick& brick = volume.bricks[b];
+                        DenseGrid& g = volume.grids[b];
+                        const auto& d = g.geometry.dims;
+                        Vec3 start(static_cast<double>(lo[0] + brick.offset[0]),
+                                   static_cast<double>(lo[1] + brick.offset[1]),
+                                   static_cast<double>(lo[2] + brick.offset[2]));
+                        const openvdb::Vec3d w =
+                            xf.indexToWorld(openvdb::Vec3d(start[0], start[1], start[2]));
+                        g.geometry.origin = Vec3(w[0], w[1], w[2]);
+                        std::size_t n = 0;
+                        for (std::int64_t k = 0; k < d[2]; ++k)
+                          for (std::int64_t j = 0; j < d[1]; ++j)
+                            for (std::int64_t i = 0; i < d[0]; ++i) {
+                              openvdb::Coord c(static_cast<openvdb::Int32>(lo[0] + brick.offset[0] + i),
+                                               static_cast<openvdb::Int32>(lo[1] + brick.offset[1] + j),
+                                               static_cast<openvdb::Int32>(lo[2] + brick.offset[2] + k));
+                              g.values[n++] = static_cast<double>(acc.getValue(c));
+                            }
+                      }
+                    });
+
+  const openvdb::Vec3d origin = xf.indexToWorld(
+      openvdb::Vec3d(static_cast<double>(lo[0]), static_cast<double>(lo[1]), static_cast<double>(lo[2])));
+  volume.geometry.dims = dims;
+  volume.geometry.origin = Vec3(origin[0], origin[1], origin[2]);
+  volume.geometry.spacing = spacing;
+  volume.isLevelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;
+  volume.background = static_cast<double>(grid.background());
+  volume.description = baseName(path) + " grid " + name + " (VDB " + typeName + " " +
+                       (volume.isLevelSet ? "level set" : gridClassName(grid.getGridClass())) +
+                       ", active box " + std::to_string(active.dim()[0]) + "x" +
+                       std::to_string(active.dim()[1]) + "x" + std::to_string(active.dim()[2]) + ", " +
+                       std::to_string(grid.activeVoxelCount()) + " active voxels)";
+  return volume;
+}
+
+}  // namespace
+
+std::vector<VdbGridInfo> listVdbGrids(const std::string& path) {
+  fileSizeOf(path);
+  initializeOpenVdb();
+  try {
+    openvdb::io::File file(path);
+    file.open(false);
+    auto infos = gridInfos(file);
+    file.close();
+    return infos;
+  } catch (const openvdb::Exception& e) {
+    throw Error(path + ": cannot read VDB file: " + e.what());
+  }
+}
+
+SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
+  fileSizeOf(path);
+  initializeOpenVdb();
+  try {
+    openvdb::io::File file(path);
+    file.open(false);
+    std::vector<VdbGridInfo> infos = gridInfos(file);
+    std::string name = options.gridName;
+    if (name.empty()) {
+      for (const auto& g : infos) {
+        if (g.valueType == "float" || g.valueType == "double") {
+          name = g.name;
+          break;
+        }
+      }
+      if (name.empty())
+        throw Error(path + ": no float or double grid in the file (grids: " + listing(infos) + ")");
+    } else {
+      auto it =
+          std::find_if(infos.begin(), infos.end(), [&](const VdbGridInfo& g) { return g.name == name; });
+      if (it == infos.end())
+        throw Error(path + ": no grid named '" + name + "' (grids: " + listing(infos) + ")");
+      if (it->valueType != "float" && it->valueType != "double") {
+        throw Error(path + ": grid '" + name + "' holds " + it->valueType +
+                    " values; only float and double grids can be read");
+      }
+    }
+    openvdb::GridBase::Ptr base = file.readGrid(name);
+    file.close();
+    if (auto fg = openvdb::gridPtrCast<openvdb::FloatGrid>(base))
+      return bricksOf(path, *fg, options, "float");
+    if (auto dg = openvdb::gridPtrCast<openvdb::DoubleGrid>(base))
+      return bricksOf(path, *dg, options, "double");
+    throw Error(path + ": grid '" + name + "' has tree type " + base->type() +
+                "; only float and double grids can be read");
+  } catch (const openvdb::Exception& e) {
+    throw Error(path + ": cannot read VDB file: " + e.what());
+  }
+}
+
+}  // namespace cip
