@@ -4,93 +4,16 @@
 #include <cstdio>
 
 #include "cip/analytic_field.h"
+#include "cip/continuity_check.h"
 #include "cip/cube_topology.h"
 #include "cip/model_builder.h"
 #include "support/random_volume.h"
 
 using namespace cip;
 
-namespace {
-
-struct ContinuityStats {
-  int facePairs = 0, curvePoints = 0;
-  double maxGap = 0;          // largest |I_B| / |grad I_B| at a zero of I_A (distance, in voxels)
-  double maxAngle = 0;        // largest angle between the two cells' gradients there (radians)
-  int signDisagreements = 0;  // face samples where the two cells' signs differ (away from the curve)
-};
-
-// For every pair of non-empty cells sharing a face with crossings: sample the face, compare signs, locate the
-// boundary curve of cell A on the face by bisection along sample lines and check it against cell B.
-ContinuityStats checkContinuity(const Model& m) {
-  ContinuityStats s;
-  const int kSamples = 24;
-  for (std::size_t a = 0; a < m.cells.size(); ++a) {
-    const ModelCell& ca = m.cells[a];
-    CornerPatch pa = m.patch(a);
-    for (int axis = 0; axis < 3; ++axis) {
-      std::array<std::int64_t, 3> nb{ca.index[0], ca.index[1], ca.index[2]};
-      nb[axis] += 1;
-      std::int64_t b = m.findCell(nb[0], nb[1], nb[2]);
-      if (b < 0) continue;
-      int faceA = 2 * axis + 1, faceB = 2 * axis;
-      if (!((pa.faceMask >> faceA) & 1)) continue;  // no crossings on the shared face
-      CornerPatch pb = m.patch(static_cast<std::size_t>(b));
-      EXPECT_TRUE((pb.faceMask >> faceB) & 1);
-      ++s.facePairs;
-      auto uv = cube::otherAxes(axis);
-      auto onA = [&](double u, double v) {
-        Vec3 x;
-        x[axis] = 1;
-        x[uv[0]] = u;
-        x[uv[1]] = v;
-        return x;
-      };
-      auto toB = [&](Vec3 x) {
-        x[axis] -= 1;
-        return x;
-      };
-      for (int iu = 0; iu <= kSamples; ++iu) {
-        double u = (iu + 0.5) / (kSamples + 1);
-        double prevV = 0.5 / (kSamples + 1), prevF = pa.value(onA(u, prevV));
-        for (int iv = 0; iv <= kSamples; ++iv) {
-          double v = (iv + 0.5) / (kSamples + 1);
-          double fa = pa.value(onA(u, v)), fb = pb.value(toB(onA(u, v)));
-          double ga = pa.derivatives(onA(u, v)).gradient.norm();
-          if (std::abs(fa) > 1e-9 * ga && (fa > 0) != (fb > 0)) ++s.signDisagreements;
-          if ((fa > 0) != (prevF > 0)) {
-            double lo = prevV, hi = v, flo = prevF;
-            for (int it = 0; it < 80; ++it) {
-              double mid = 0.5 * (lo + hi), fm = pa.value(onA(u, mid));
-              if ((fm > 0) == (flo > 0)) {
-                lo = mid;
-                flo = fm;
-              } else {
-                hi = mid;
-              }
-            }
-            Vec3 x = onA(u, 0.5 * (lo + hi));
-            PatchDerivatives da = pa.derivatives(x), db = pb.derivatives(toB(x));
-            if (da.gradient.norm() > 0 && db.gradient.norm() > 0) {
-              s.maxGap = std::max(s.maxGap, std::abs(db.value) / db.gradient.norm());
-              double c = da.gradient.normalized().dot(db.gradient.normalized());
-              s.maxAngle = std::max(s.maxAngle, std::acos(std::clamp(c, -1.0, 1.0)));
-              ++s.curvePoints;
-            }
-          }
-          prevV = v;
-          prevF = fa;
-        }
-      }
-    }
-  }
-  return s;
-}
-
-}  // namespace
-
-// Tolerances: a boundary point of one cell is within 1e-9 voxel of the neighbour's zero set and the two normals
-// agree within 1e-6 rad; both are far above rounding (~1e-14) and far below any real mismatch (a crack would be
-// ~1e-3 voxel and more).
+// Tolerances: a boundary point of one cell is within 1e-9 voxel of the neighbour's zero set and the two
+// normals agree within 1e-6 rad; both are far above rounding (~1e-14) and far below any real mismatch (a
+// crack would be ~1e-3 voxel and more).
 constexpr double kMaxGap = 1e-9, kMaxAngle = 1e-6;
 
 class ContinuityOnRandomVolumes : public ::testing::TestWithParam<NormalMode> {};
@@ -100,15 +23,16 @@ TEST_P(ContinuityOnRandomVolumes, NeighboursShareZeroSetAndNormals) {
     DenseGrid g = test::randomVolume(9, seed);
     BuildOptions o;
     o.normals = GetParam();
-    o.central = seed == 3 ? CentralRule::Interior : CentralRule::Zero;  // the central term vanishes on every face
+    o.central =
+        seed == 3 ? CentralRule::Interior : CentralRule::Zero;  // the central term vanishes on every face
     Model m = buildModel(g, o);
     int ambiguous = 0;
     for (const auto& c : m.cells)
       for (int f = 0; f < 6; ++f) ambiguous += cube::isAmbiguousFace(c.config, f);
     EXPECT_GT(ambiguous, 50) << "the random volume should be rich in ambiguous faces";
-    ContinuityStats s = checkContinuity(m);
-    std::printf("seed %u: %d face pairs, %d curve points, max gap %.3g voxel, max normal angle %.3g rad\n", seed,
-                s.facePairs, s.curvePoints, s.maxGap, s.maxAngle);
+    ContinuityStats s = measureContinuity(m);
+    std::printf("seed %u: %d face pairs, %d curve points, max gap %.3g voxel, max normal angle %.3g rad\n",
+                seed, s.facePairs, s.curvePoints, s.maxGap, s.maxAngle);
     EXPECT_GT(s.facePairs, 300);
     EXPECT_GT(s.curvePoints, 3000);
     EXPECT_LT(s.maxGap, kMaxGap) << "seed " << seed;
@@ -128,7 +52,7 @@ TEST(Continuity, ExactGyroid) {
   o.normals = NormalMode::Exact;
   o.exactField = field.get();
   Model m = buildModel(g, o);
-  ContinuityStats s = checkContinuity(m);
+  ContinuityStats s = measureContinuity(m);
   EXPECT_GT(s.curvePoints, 1000);
   EXPECT_LT(s.maxGap, kMaxGap);
   EXPECT_LT(s.maxAngle, kMaxAngle);
@@ -151,7 +75,9 @@ TEST_P(LinearField, ReproducedExactlyByEveryCell) {
   for (std::size_t c = 0; c < m.cells.size(); ++c) {
     CornerPatch p = m.patch(c);
     Vec3 origin = m.cellOrigin(c);
-    auto planeValue = [&](const Vec3& local) { return field->value(m.geometry.indexToWorld(origin + local)); };
+    auto planeValue = [&](const Vec3& local) {
+      return field->value(m.geometry.indexToWorld(origin + local));
+    };
     for (int s = 0; s < 50; ++s) {
       Vec3 x(u(rng), u(rng), u(rng));
       double l = planeValue(x), value = p.value(x);
