@@ -12,6 +12,7 @@
 #include "cip/cube_topology.h"
 #include "cip/error.h"
 #include "cip/patch_coefficients.h"
+#include "cip/patch_fitting.h"
 
 namespace cip {
 
@@ -138,7 +139,7 @@ class ProgressReporter {
 }  // namespace
 
 CornerPatch buildCellPatch(std::uint8_t config, const std::array<IsoVertex, 12>& vertexData,
-                           std::uint8_t* pairing03Out, CellLoops* loopsOut) {
+                           std::uint8_t* pairing03Out, CellLoops* loopsOut, bool fitCoefficients) {
   std::uint8_t pairing = 0;
   for (int f = 0; f < 6; ++f) {
     if (!cube::isAmbiguousFace(config, f)) continue;
@@ -161,7 +162,7 @@ CornerPatch buildCellPatch(std::uint8_t config, const std::array<IsoVertex, 12>&
     patch.edge[c] = loops.edges[c];
   }
   patch.faceMask = loops.faceMask;
-  for (int f = 0; f < 6; ++f)
+  for (int f = 0; f < 6 && fitCoefficients; ++f)
     if ((loops.faceMask >> f) & 1)
       patch.faceCoefficient[f] = fitFaceCoefficient(faceCrossingsOf(patch, f, (pairing >> f) & 1));
   if (pairing03Out) *pairing03Out = pairing;
@@ -189,7 +190,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
   model.geometry = geometry;
   model.isovalue = iso;
   model.normalMode = options.normals;
-  model.method = PatchMethod::Paper;
+  model.method = options.method;
   model.source = source;
 
   arena.execute([&] {
@@ -278,7 +279,9 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
           vx.normal = orientCornerNormal(gradWorld.cwiseProduct(spacing), towardsPositive);
         } else {
           t = linearCrossing(v0, v1, iso);
-          if (options.normals == NormalMode::Edge) {
+          if (options.method == PatchMethod::Fitted && options.normals == NormalMode::Gradient) {
+            t = cubicEdgeVertex(g, lp, axis, iso, vx.normal);
+          } else if (options.normals == NormalMode::Edge) {
             vx.normal = towardsPositive;
           } else {
             Vec3 g0 = gridGradient(g, lp[0], lp[1], lp[2]), g1 = gridGradient(g, lq[0], lq[1], lq[2]);
@@ -322,8 +325,8 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         }
         ModelCell& mc = model.cells[c];
         CellLoops loops;
-        CornerPatch patch = buildCellPatch(ref.config, local, &mc.pairing03, &loops);
-        if (options.central == CentralRule::Interior) {
+        CornerPatch patch = buildCellPatch(ref.config, local, &mc.pairing03, &loops, options.fitCoefficients);
+        if (options.fitCoefficients && options.central == CentralRule::Interior) {
           Vec3 p;
           std::function<double(const Vec3&)> reference;
           if (options.exactField) {
@@ -358,6 +361,22 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         if (done % 4096 == 0) progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
       }
     });
+    if (options.method == PatchMethod::Fitted) {
+      // Reference: the analytic field in exact mode, else the tricubic interpolant of the cell's brick.
+      fitModelPatches(model, [&](std::size_t c) {
+        auto gc = global.coords(cells[c].key);
+        if (options.normals == NormalMode::Exact) {
+          CellReference ref;
+          ref.field = options.exactField;
+          ref.geometry = &model.geometry;
+          ref.origin = Vec3(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
+          ref.isovalue = iso;
+          return ref;
+        }
+        const GridBrick& b = bricks[cells[c].brick];
+        return tricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]}, iso);
+      });
+    }
   });
   progress.set(1.0);
   return model;

@@ -20,10 +20,16 @@ struct BuildOptions {
   double isovalue = 0;
   NormalMode normals = NormalMode::Gradient;
   CentralRule central = CentralRule::Zero;
+  /// Coefficient construction. PatchMethod::Fitted (patch_fitting.h) ignores `central`; with NormalMode::Gradient it
+  /// also places isovertices on the Catmull-Rom cubic along each edge, with the tricubic interpolant's gradient.
+  PatchMethod method = PatchMethod::Paper;
   /// Analytic field sampled by the grid (world coordinates); required for NormalMode::Exact.
   const ScalarField* exactField = nullptr;
   /// Cells with a NaN or infinite corner value are skipped (left empty) instead of failing the build.
   bool skipNonFinite = false;
+  /// With false, cells get their loops and corners but no side or central coefficients (all 0): the isovertex
+  /// table and loops are all marching cubes needs, so this is the project's marching-cubes front end.
+  bool fitCoefficients = true;
   /// Worker threads; 0 = all hardware threads.
   int threads = 0;
   /// Called with the fraction done (0..1), possibly from worker threads but never concurrently.
@@ -50,6 +56,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
 /// CentralRule::Zero, w = 0. Used by the builder; exposed for tests and single-cell tools.
 /// `vertexData[e]` is the isovertex on cell edge e in cell-local coordinates (only crossed edges are read).
 CornerPatch buildCellPatch(std::uint8_t config, const std::array<IsoVertex, 12>& vertexData,
-                           std::uint8_t* pairing03Out = nullptr, CellLoops* loopsOut = nullptr);
+                           std::uint8_t* pairing03Out = nullptr, CellLoops* loopsOut = nullptr,
+                           bool fitCoefficients = true);
 
 }  // namespace cip
