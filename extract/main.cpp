@@ -12,7 +12,9 @@
 #include "cip/model_builder.h"
 #include "cip/model_file.h"
 #include "cip/progress_bar.h"
-#include "cip/raw_reader.h"
+#include "cip/marching_cubes.h"
+#include "cip/ply.h"
+#include "cip/volume_reader.h"
 #include "extract_stats.h"
 
 namespace {
@@ -42,34 +44,39 @@ int run(const Options& opt) {
   cip::ExtractStats stats;
   stats.input = opt.input;
   auto t0 = Clock::now();
-  cip::DenseGrid grid;
+  cip::SparseVolume volume;
   std::unique_ptr<cip::AnalyticField> field;
   std::optional<double> defaultIso;
   const bool isFile = std::filesystem::exists(opt.input);
   if (!isFile && (field = cip::makeAnalyticField(opt.input))) {
-    grid = cip::sampleField(*field, opt.resolution, opt.input + " sampled at " + std::to_string(opt.resolution) +
-                                                        " cells per axis over [-1,1]^3");
+    volume = cip::fromDense(cip::sampleField(*field, opt.resolution,
+                                             opt.input + " sampled at " + std::to_string(opt.resolution) +
+                                                 " cells per axis over [-1,1]^3"));
     defaultIso = field->defaultIsovalue();
-    stats.inputType = "analytic";
-  } else if (!opt.dims.empty() || !opt.type.empty()) {
-    if (opt.dims.empty() || opt.type.empty()) throw cip::Error("raw input needs both --dims and --type");
-    cip::RawFormat f;
-    f.dims = cip::parseDims(opt.dims);
-    f.type = cip::parseSampleType(opt.type);
-    f.endian = cip::parseEndian(opt.endian);
-    f.spacing = vec3(opt.spacing, cip::Vec3::Ones(), "--spacing");
-    f.origin = vec3(opt.origin, cip::Vec3::Zero(), "--origin");
-    f.offset = opt.offset;
-    grid = cip::readRaw(opt.input, f);
-    stats.inputType = "raw " + opt.type;
+    stats.inputType = "analytic field " + opt.input;
   } else if (!isFile) {
     std::string names;
     for (auto& n : cip::analyticFieldNames()) names += (names.empty() ? "" : ", ") + n;
     throw cip::Error(opt.input + ": no such file, and not an analytic field (" + names + ")");
   } else {
-    throw cip::Error(opt.input + ": unrecognised input format (use --dims and --type for raw volumes)");
+    cip::VolumeReadOptions read;
+    if (!opt.dims.empty() || !opt.type.empty()) {
+      if (opt.dims.empty() || opt.type.empty()) throw cip::Error("raw input needs both --dims and --type");
+      cip::RawFormat f;
+      f.dims = cip::parseDims(opt.dims);
+      f.type = cip::parseSampleType(opt.type);
+      f.endian = cip::parseEndian(opt.endian);
+      f.spacing = vec3(opt.spacing, cip::Vec3::Ones(), "--spacing");
+      f.origin = vec3(opt.origin, cip::Vec3::Zero(), "--origin");
+      f.offset = opt.offset;
+      read.raw = f;
+    }
+    read.vdbGrid = opt.grid;
+    volume = cip::readVolume(opt.input, read);
+    if (volume.isLevelSet) defaultIso = 0.0;
+    stats.inputType = cip::describeVolume(volume);
   }
-  stats.dims = grid.geometry.dims;
+  stats.dims = volume.geometry.dims;
   stats.seconds["read"] = secondsSince(t0);
 
   cip::BuildOptions build;
@@ -80,7 +87,7 @@ int run(const Options& opt) {
   } else {
     throw cip::Error(opt.input + ": no default isovalue for this input; give one with --iso");
   }
-  auto [lo, hi] = grid.range();
+  auto [lo, hi] = volume.range();
   if (!(build.isovalue > lo && build.isovalue < hi)) {
     std::fprintf(stderr, "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n",
                  build.isovalue, lo, hi);
@@ -108,7 +115,7 @@ int run(const Options& opt) {
   {
     cip::ProgressBar bar("building", !opt.quiet);
     build.progress = [&](double f) { bar.update(f); };
-    model = cip::buildModel(grid, build);
+    model = cip::buildModel(volume.geometry, volume.bricks, build, volume.description);
   }
   stats.seconds["build"] = secondsSince(t1);
 
@@ -116,6 +123,15 @@ int run(const Options& opt) {
   stats.bytesWritten[opt.output] = cip::writeModel(model, opt.output);
   stats.seconds["write_model"] = secondsSince(t2);
 
+  if (!opt.mcMesh.empty()) {
+    auto t3 = Clock::now();
+    cip::MarchingCubesOptions mo;
+    mo.threads = opt.threads;
+    mo.recordCells = false;
+    cip::TriangleMesh mesh = cip::marchingCubes(model, mo);
+    stats.bytesWritten[opt.mcMesh] = cip::writePly(mesh, opt.mcMesh);
+    stats.seconds["marching_cubes"] = secondsSince(t3);
+  }
   if (!opt.quiet) {
     std::fprintf(stderr, "%s: %zu non-empty cells, %zu isovertices, %zu bytes\n", opt.output.c_str(),
                  model.cells.size(), model.vertices.size(), stats.bytesWritten[opt.output]);

@@ -1,0 +1,228 @@
+// cip_bench: the measurements behind benchmarks/results/report.md, printed as CSV rows. Every figure of a row comes
+// from runs made side by side in the same invocation. Driven by benchmarks/run.py; usable alone:
+//   cip_bench extraction --csv extraction.csv [--quick] [--shared-data ../shared/data]
+//   cip_bench fidelity   --csv fidelity.csv   [--quick]
+#include <CLI/CLI.hpp>
+#include <tbb/info.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+
+#include "cip/analytic_field.h"
+#include "cip/continuity_check.h"
+#include "cip/marching_cubes.h"
+#include "cip/model_builder.h"
+#include "cip/model_file.h"
+#include "cip/ply.h"
+#include "cip/surface_fidelity.h"
+#include "cip/volume_reader.h"
+#include "openvdb_peer.h"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+/// Median wall time of up to 3 runs (1 run when the first takes over a second).
+double timeIt(const std::function<void()>& fn) {
+  std::vector<double> t;
+  for (int r = 0; r < 3; ++r) {
+    auto t0 = Clock::now();
+    fn();
+    t.push_back(std::chrono::duration<double>(Clock::now() - t0).count());
+    if (t.back() > 1.0) break;
+  }
+  std::sort(t.begin(), t.end());
+  return t[t.size() / 2];
+}
+
+class Csv {
+ public:
+  Csv(const std::string& path, const std::string& header) : out_(path) {
+    if (!out_) throw std::runtime_error("cannot write " + path);
+    out_ << header << "\n";
+  }
+  template <class... T>
+  void row(const T&... v) {
+    std::ostringstream s;
+    s.precision(6);
+    bool first = true;
+    ((s << (first ? "" : ",") << v, first = false), ...);
+    out_ << s.str() << "\n";
+    out_.flush();
+    std::fprintf(stderr, "  %s\n", s.str().c_str());
+  }
+
+ private:
+  std::ofstream out_;
+};
+
+std::size_t plyBytes(const cip::TriangleMesh& mesh) {
+  auto path = std::filesystem::temp_directory_path() / "cip_bench_mesh.ply";
+  std::size_t n = cip::writePly(mesh, path.string());
+  std::filesystem::remove(path);
+  return n;
+}
+
+/// Bytes of a volume file, plus its detached data file for NRRD headers (.nhdr).
+std::size_t inputFileBytes(const std::string& path) {
+  std::size_t bytes = std::filesystem::file_size(path);
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("data file:", 0) != 0) continue;
+    std::string name = line.substr(10);
+    name.erase(0, name.find_first_not_of(' '));
+    auto data = std::filesystem::path(path).parent_path() / name;
+    if (std::filesystem::exists(data)) bytes += std::filesystem::file_size(data);
+  }
+  return bytes;
+}
+
+struct Case {
+  std::string name;     // e.g. sphere-128, tooth
+  std::string source;   // analytic | file path
+  int resolution = 0;   // analytic only
+  double iso = 0;
+  std::size_t inputBytes = 0;
+};
+
+void extraction(const std::string& csvPath, bool quick, const std::string& shared) {
+  Csv csv(csvPath,
+          "case,points,cells,method,threads,seconds,mcells_per_s,output_count,output_bytes,input_bytes");
+  std::vector<Case> cases;
+  for (const char* f : {"sphere", "torus", "gyroid"})
+    for (int n : quick ? std::vector<int>{32} : std::vector<int>{64, 128, 256})
+      cases.push_back({std::string(f) + "-" + std::to_string(n), f, n, 0.0, 0});
+  if (std::filesystem::exists(shared)) {
+    std::vector<std::pair<std::string, double>> files = {{"nucleon.nhdr", 128}, {"tooth.nhdr", 120},
+                                                         {"headsq.nhdr", 500}};
+    if (quick) files.resize(1);
+    for (auto& [file, iso] : files) cases.push_back({file, shared + "/" + file, 0, iso, 0});
+  }
+  const int allThreads = tbb::info::default_concurrency();
+  for (Case& c : cases) {
+    std::fprintf(stderr, "extraction: %s\n", c.name.c_str());
+    cip::DenseGrid grid;
+    if (c.resolution > 0) {
+      auto field = cip::makeAnalyticField(c.source);
+      grid = cip::sampleField(*field, c.resolution, c.source);
+      c.inputBytes = grid.values.size() * sizeof(float);  // as a float32 volume
+    } else {
+      cip::SparseVolume v = cip::readVolume(c.source);
+      grid = std::move(*const_cast<cip::DenseGrid*>(v.dense()));
+      c.inputBytes = inputFileBytes(c.source);
+    }
+    const auto& d = grid.geometry.dims;
+    const double cells = static_cast<double>((d[0] - 1) * (d[1] - 1) * (d[2] - 1));
+    cipbench::OpenVdbPeer peer(grid);
+    for (int threads : {1, allThreads}) {
+      cip::BuildOptions o;
+      o.isovalue = c.iso;
+      o.threads = threads;
+      cip::Model model;
+      double tModel = timeIt([&] { model = cip::buildModel(grid, o); });
+      std::size_t modelBytes = cip::serializeModel(model).size();
+      csv.row(c.name, grid.values.size(), cells, "cip-patches", threads, tModel, cells / tModel * 1e-6,
+              model.cells.size(), modelBytes, c.inputBytes);
+      cip::TriangleMesh mc;
+      o.fitCoefficients = false;
+      double tMc = timeIt([&] {
+        cip::Model skeleton = cip::buildModel(grid, o);
+        cip::MarchingCubesOptions mo;
+        mo.threads = threads;
+        mo.recordCells = false;
+        mc = cip::marchingCubes(skeleton, mo);
+      });
+      csv.row(c.name, grid.values.size(), cells, "cip-marching-cubes", threads, tMc, cells / tMc * 1e-6,
+              mc.triangleCount(), plyBytes(mc), c.inputBytes);
+      std::size_t polys = 0;
+      double tVdb = timeIt([&] { polys = peer.mesh(c.iso, threads); });
+      csv.row(c.name, grid.values.size(), cells, "openvdb-volumeToMesh", threads, tVdb, cells / tVdb * 1e-6, polys,
+              0, c.inputBytes);
+    }
+  }
+}
+
+struct Variant {
+  std::string name;
+  cip::NormalMode normals;
+};
+
+void fidelity(const std::string& csvPath, bool quick) {
+  Csv csv(csvPath,
+          "field,N,method,cells,samples,dist_mean,dist_p99,dist_max,normal_mean,normal_p99,curv_mean,curv_p99,"
+          "spurious_cells,continuity_max_gap,continuity_max_angle_deg");
+  const std::vector<int> sizes = quick ? std::vector<int>{16} : std::vector<int>{16, 32, 64, 128};
+  for (const char* name : {"sphere", "torus", "gyroid", "marschner-lobb"}) {
+    auto field = cip::makeAnalyticField(name);
+    for (int n : sizes) {
+      std::fprintf(stderr, "fidelity: %s N=%d\n", name, n);
+      cip::DenseGrid grid = cip::sampleField(*field, n, name);
+      const double voxel = grid.geometry.spacing.minCoeff();
+      const int lines = n >= 128 ? 2 : n >= 64 ? 3 : 4;
+      const double iso = field->defaultIsovalue();
+      auto report = [&](const std::string& method, const cip::Model& m, const std::vector<cip::SurfaceSample>& s,
+                        bool patches) {
+        cip::FidelityMeasures f = cip::measureFidelity(s, *field, iso, voxel, patches);
+        std::int64_t spurious = patches ? cip::countSpuriousCells(m, *field, n >= 128 ? 4 : 8, 0.5) : 0;
+        cip::ContinuityStats cont;
+        if (patches) cont = cip::measureContinuity(m, n >= 64 ? 6 : 12);
+        csv.row(name, n, method, m.cells.size(), f.distanceVoxels.count, f.distanceVoxels.mean, f.distanceVoxels.p99,
+                f.distanceVoxels.max, f.normalDegrees.mean, f.normalDegrees.p99,
+                patches ? f.curvatureError.mean : 0.0, patches ? f.curvatureError.p99 : 0.0, patches ? spurious : -1,
+                patches ? cont.maxGap : -1.0, patches ? cont.maxAngle * 57.29577951308232 : -1.0);
+      };
+      for (cip::NormalMode mode : {cip::NormalMode::Edge, cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
+        cip::BuildOptions o;
+        o.isovalue = iso;
+        o.normals = mode;
+        o.exactField = field.get();
+        cip::Model m = cip::buildModel(grid, o);
+        report(std::string("patch-") + toString(m.method) + "-" + cip::toString(mode), m, cip::samplePatchSurface(m, lines),
+               true);
+      }
+      // Marching cubes on linearly interpolated isovertices (the usual method), and on exact ones.
+      for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
+        cip::BuildOptions o;
+        o.isovalue = iso;
+        o.normals = mode;
+        o.exactField = field.get();
+        o.fitCoefficients = false;
+        cip::Model m = cip::buildModel(grid, o);
+        cip::TriangleMesh mesh = cip::marchingCubes(m);
+        std::string base = mode == cip::NormalMode::Exact ? "mc-exactvertices" : "mc";
+        report(base + "-facet", m, cip::sampleMeshSurface(mesh, m, lines, false), false);
+        report(base + "-vertexnormals-" + cip::toString(mode), m, cip::sampleMeshSurface(mesh, m, lines, true), false);
+      }
+    }
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"cip_bench: side-by-side extraction and fidelity measurements (CSV)"};
+  app.require_subcommand(1);
+  std::string csv, shared = "../shared/data";
+  bool quick = false;
+  auto* ex = app.add_subcommand("extraction", "extraction time and output size: cip patches vs marching cubes vs OpenVDB");
+  ex->add_option("--csv", csv, "output CSV")->required();
+  ex->add_option("--shared-data", shared, "folder with the real volumes");
+  ex->add_flag("--quick", quick, "small sizes only");
+  auto* fi = app.add_subcommand("fidelity", "distance, normal and curvature errors against analytic fields");
+  fi->add_option("--csv", csv, "output CSV")->required();
+  fi->add_flag("--quick", quick, "small sizes only");
+  CLI11_PARSE(app, argc, argv);
+  try {
+    if (*ex) extraction(csv, quick, shared);
+    if (*fi) fidelity(csv, quick);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "cip_bench: error: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}
