@@ -1,5 +1,6 @@
 #include "cip/vdb_reader.h"
 
+#include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -7,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <fstream>
 #include <limits>
 #include <mutex>
 #include <set>
@@ -245,41 +247,46 @@ std::vector<VdbGridInfo> listVdbGrids(const std::string& path) {
 SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
   fileSizeOf(path);
   initializeOpenVdb();
+  // Read through a stream with exceptions enabled: OpenVDB does not notice a file that ends early (its tree
+  // would silently miss values), the stream does. This loads every grid of the file; only the chosen one is
+  // kept.
+  openvdb::GridPtrVecPtr grids;
   try {
-    openvdb::io::File file(path);
-    file.open(false);
-    std::vector<VdbGridInfo> infos = gridInfos(file);
-    std::string name = options.gridName;
-    if (name.empty()) {
-      for (const auto& g : infos) {
-        if (g.valueType == "float" || g.valueType == "double") {
-          name = g.name;
-          break;
-        }
-      }
-      if (name.empty())
-        throw Error(path + ": no float or double grid in the file (grids: " + listing(infos) + ")");
-    } else {
-      auto it =
-          std::find_if(infos.begin(), infos.end(), [&](const VdbGridInfo& g) { return g.name == name; });
-      if (it == infos.end())
-        throw Error(path + ": no grid named '" + name + "' (grids: " + listing(infos) + ")");
-      if (it->valueType != "float" && it->valueType != "double") {
-        throw Error(path + ": grid '" + name + "' holds " + it->valueType +
-                    " values; only float and double grids can be read");
-      }
-    }
-    openvdb::GridBase::Ptr base = file.readGrid(name);
-    file.close();
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw Error(path + ": cannot open");
+    in.exceptions(std::ios::badbit | std::ios::failbit);
+    openvdb::io::Stream stream(in, false);
+    grids = stream.getGrids();
+  } catch (const openvdb::Exception& e) {
+    throw Error(path + ": cannot read VDB file: " + e.what());
+  } catch (const std::ios_base::failure&) {
+    throw Error(path + ": cannot read VDB file: it is truncated or corrupt");
+  }
+  std::vector<VdbGridInfo> infos;
+  for (const auto& g : *grids)
+    infos.push_back({g->getName(), g->valueType(), gridClassName(g->getGridClass())});
+  std::string name = options.gridName;
+  openvdb::GridBase::Ptr base;
+  for (std::size_t n = 0; n < infos.size() && !base; ++n) {
+    bool scalar = infos[n].valueType == "float" || infos[n].valueType == "double";
+    if (name.empty() ? scalar : infos[n].name == name) base = (*grids)[n];
+  }
+  if (!base) {
+    if (name.empty())
+      throw Error(path + ": no float or double grid in the file (grids: " + listing(infos) + ")");
+    throw Error(path + ": no grid named '" + name + "' (grids: " + listing(infos) + ")");
+  }
+  name = base->getName();
+  try {
     if (auto fg = openvdb::gridPtrCast<openvdb::FloatGrid>(base))
       return bricksOf(path, *fg, options, "float");
     if (auto dg = openvdb::gridPtrCast<openvdb::DoubleGrid>(base))
       return bricksOf(path, *dg, options, "double");
-    throw Error(path + ": grid '" + name + "' has tree type " + base->type() +
-                "; only float and double grids can be read");
   } catch (const openvdb::Exception& e) {
-    throw Error(path + ": cannot read VDB file: " + e.what());
+    throw Error(path + ": grid '" + name + "': " + e.what());
   }
+  throw Error(path + ": grid '" + name + "' holds " + base->valueType() +
+              " values; only float and double grids can be read");
 }
 
 }  // namespace cip
