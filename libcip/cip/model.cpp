@@ -7,6 +7,7 @@ namespace cip {
 const char* toString(PatchMethod method) {
   switch (method) {
     case PatchMethod::Paper: return "paper";
+    case PatchMethod::Fitted: return "fitted";
   }
   return "unknown";
 }

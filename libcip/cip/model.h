@@ -29,7 +29,9 @@ struct ModelCell {
 
 /// How the patch coefficients were chosen (stored in the model so results are reproducible).
 enum class PatchMethod : std::uint8_t {
-  Paper = 0,  ///< corner coefficients 1, side coefficients by the triangle/tetragon rule + eq. 5, central 0 or eq. 6
+  Paper = 0,   ///< corner coefficients 1, side coefficients by the triangle/tetragon rule + eq. 5, central 0 or eq. 6
+  Fitted = 1,  ///< side and central coefficients fitted under sign constraints, normals blended where needed
+               ///< (patch_fitting.h)
 };
 const char* toString(PatchMethod method);
 

@@ -141,7 +141,9 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   if (mode > 2) r.fail("unknown normal mode " + std::to_string(mode));
   m.normalMode = static_cast<NormalMode>(mode);
   auto method = r.get<std::uint8_t>("method");
-  if (method > 0) r.fail("unknown patch method " + std::to_string(method));
+  if (method > static_cast<std::uint8_t>(PatchMethod::Fitted)) {
+    r.fail("unknown patch method " + std::to_string(method));
+  }
   m.method = static_cast<PatchMethod>(method);
   r.get<std::uint16_t>("reserved");
   auto sourceLen = r.get<std::uint32_t>("source length");

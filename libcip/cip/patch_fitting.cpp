@@ -1,0 +1,482 @@
+#include "cip/patch_fitting.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "cip/cube_topology.h"
+#include "cip/patch_coefficients.h"
+
+namespace cip {
+
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+/// Blend levels of a corner-plane normal: n = normalize((1 - beta) n_gradient + beta e_edge).
+constexpr std::array<double, 5> kBlend{0.0, 0.25, 0.5, 0.75, 1.0};
+constexpr int kMaxLevel = static_cast<int>(kBlend.size()) - 1;
+/// Samples per axis of the sign checks: face lattice (kFaceLattice^2) and cell lattice (kCellLattice^3), at
+/// (a + 1/2) / n.
+constexpr int kFaceLattice = 9, kCellLattice = 7;
+/// Samples closer than this to the reference surface (first-order estimate |f| / |grad f|, voxels) are not
+/// checked.
+constexpr double kMarginVoxels = 0.35;
+/// Weight of the ridge term of the coefficient fits (relative to a fit point at the cell or face centre).
+constexpr double kRidge = 1e-3;
+
+/// Catmull-Rom weights for samples at -1, 0, 1, 2 and their derivatives, at t in [0, 1].
+void catmullRom(double t, double* w, double* d) {
+  double t2 = t * t, t3 = t2 * t;
+  w[0] = 0.5 * (-t3 + 2 * t2 - t);
+  w[1] = 0.5 * (3 * t3 - 5 * t2 + 2);
+  w[2] = 0.5 * (-3 * t3 + 4 * t2 + t);
+  w[3] = 0.5 * (t3 - t2);
+  if (d) {
+    d[0] = 0.5 * (-3 * t2 + 4 * t - 1);
+    d[1] = 0.5 * (9 * t2 - 10 * t);
+    d[2] = 0.5 * (-9 * t2 + 8 * t + 1);
+    d[3] = 0.5 * (3 * t2 - 2 * t);
+  }
+}
+
+std::int64_t clampIndex(std::int64_t i, std::int64_t n) {
+  return std::clamp<std::int64_t>(i, 0, n - 1);
+}
+
+/// Interval of a coefficient w with sign(s) * (a + w b) > 0 for all added constraints (b >= 0).
+struct Interval {
+  double lo = -kInf, hi = kInf;
+  bool empty = false;
+  void add(bool positive, double a, double b) {
+    if (!(b > 1e-300)) {
+      if ((a > 0) != positive) empty = true;
+      return;
+    }
+    double t = -a / b;
+    if (positive) {
+      lo = std::max(lo, t);
+    } else {
+      hi = std::min(hi, t);
+    }
+  }
+  bool feasible() const { return !empty && lo < hi; }
+  /// `w` moved into the interval, kept a relative margin away from each end (an end puts the zero set through
+  /// the sample that defines it: at the end t = -a / b, a + w b >= kEps |a| needs w >= t + kEps |t|).
+  double clamp(double w) const {
+    constexpr double kEps = 0.05;
+    double a = std::isfinite(lo) ? lo + kEps * std::abs(lo) : lo;
+    double b = std::isfinite(hi) ? hi - kEps * std::abs(hi) : hi;
+    if (!(a <= b)) return 0.5 * (lo + hi);
+    return std::clamp(w, a, b);
+  }
+};
+
+struct FaceEntry {
+  std::uint64_t key = 0;
+  std::array<std::uint32_t, 2> cell{};
+  std::array<std::int8_t, 2> face{};
+  int count = 0;
+};
+
+struct FaceResult {
+  double coefficient = 0;
+  bool ok = true;
+};
+
+FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellReference& ref) {
+  const std::size_t c = entry.cell[0];
+  const int f = entry.face[0];
+  CornerPatch patch = model.patch(c);
+  FaceCrossings fc = faceCrossingsOf(patch, f, (model.cells[c].pairing03 >> f) & 1);
+  const int axis = cube::faceAxis(f);
+  const auto uv = cube::otherAxes(axis);
+  auto to3d = [&](double u, double v) {
+    Vec3 x;
+    x[axis] = cube::faceSide(f);
+    x[uv[0]] = u;
+    x[uv[1]] = v;
+    return x;
+  };
+  constexpr int n = kFaceLattice;
+  std::array<double, n * n> r{};
+  Interval interval;
+  for (int b = 0; b < n; ++b)
+    for (int a = 0; a < n; ++a) {
+      Vec2 q((a + 0.5) / n, (b + 0.5) / n);
+      Vec3 x = to3d(q.x(), q.y());
+      double value = ref.value(x);
+      r[a + n * b] = value;
+      double g = ref.gradient(x).norm();
+      if (!(std::abs(value) > kMarginVoxels * g)) continue;
+      FaceRestriction fr = faceRestriction(fc, q);
+      interval.add(value > 0, fr.cornerPart, fr.sideBasis);
+    }
+  // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
+  double num = 0, den = 0;
+  int fitCount = 0;
+  auto addFit = [&](const Vec2& q0, double r0, const Vec2& q1, double r1) {
+    if ((r0 > 0) == (r1 > 0)) return;
+    double t = r0 / (r0 - r1);
+    FaceRestriction fr = faceRestriction(fc, q0 + t * (q1 - q0));
+    num += fr.cornerPart * fr.sideBasis;
+    den += fr.sideBasis * fr.sideBasis;
+    ++fitCount;
+  };
+  for (int b = 0; b < n; ++b)
+    for (int a = 0; a < n; ++a) {
+      Vec2 q((a + 0.5) / n, (b + 0.5) / n);
+      if (a + 1 < n) addFit(q, r[a + n * b], Vec2((a + 1.5) / n, q.y()), r[a + 1 + n * b]);
+      if (b + 1 < n) addFit(q, r[a + n * b], Vec2(q.x(), (b + 1.5) / n), r[a + n * (b + 1)]);
+    }
+  if (fitCount == 0) {
+    // The reference curve passes between the samples (close to a face vertex): use the side points instead.
+    std::array<std::array<int, 2>, 2> segments;
+    int numSegments = faceSegments(fc, segments);
+    for (int k = 0; k < numSegments; ++k) {
+      FaceRestriction fr = faceRestriction(fc, sidePoint(fc, segments[k][0], segments[k][1]));
+      num += fr.cornerPart * fr.sideBasis;
+      den += fr.sideBasis * fr.sideBasis;
+      ++fitCount;
+    }
+  }
+  // Ridge term towards 0 at the scale of the side basis at the face centre: where every fit point has a tiny
+  // side basis (a face curve hugging a face vertex) w hardly moves the face curve but would still weigh on
+  // the interior.
+  const double dCentre = faceRestriction(fc, Vec2(0.5, 0.5)).sideBasis;
+  den += kRidge * dCentre * dCentre * std::max(1, fitCount);
+  double w = -num / den;
+  FaceResult out;
+  out.ok = interval.feasible();
+  out.coefficient = out.ok ? interval.clamp(w) : w;
+  if (!std::isfinite(out.coefficient)) out.coefficient = 0;
+  return out;
+}
+
+struct CellResult {
+  double central = 0;
+  bool ok = true;
+};
+
+CellResult fitCell(const Model& model, std::size_t c, const CellReference& ref) {
+  CornerPatch patch = model.patch(c);
+  constexpr int n = kCellLattice;
+  constexpr double h = 1.0 / n;
+  std::array<double, n * n * n> r{};
+  auto at = [](int a, int b, int d) { return a + n * (b + n * d); };
+  for (int d = 0; d < n; ++d)
+    for (int b = 0; b < n; ++b)
+      for (int a = 0; a < n; ++a)
+        r[at(a, b, d)] = ref.value(Vec3((a + 0.5) * h, (b + 0.5) * h, (d + 0.5) * h));
+  auto lattice = [&](int a, int b, int d) { return Vec3((a + 0.5) * h, (b + 0.5) * h, (d + 0.5) * h); };
+  Interval interval;
+  double num = 0, den = 0;
+  int fitCount = 0;
+  for (int d = 0; d < n; ++d)
+    for (int b = 0; b < n; ++b)
+      for (int a = 0; a < n; ++a) {
+        const std::array<int, 3> i{a, b, d};
+        const double value = r[at(a, b, d)];
+        Vec3 g;
+        for (int k = 0; k < 3; ++k) {
+          auto lo = i, hi = i;
+          if (lo[k] > 0) --lo[k];
+          if (hi[k] + 1 < n) ++hi[k];
+          g[k] = (r[at(hi[0], hi[1], hi[2])] - r[at(lo[0], lo[1], lo[2])]) / ((hi[k] - lo[k]) * h);
+        }
+        Vec3 x = lattice(a, b, d);
+        if (std::abs(value) > kMarginVoxels * g.norm()) {
+          interval.add(value > 0, patch.valueWithoutCentral(x), patch.centralBasis(x));
+        }
+        for (int k = 0; k < 3; ++k) {
+          if (i[k] + 1 >= n) continue;
+          auto j = i;
+          ++j[k];
+          double other = r[at(j[0], j[1], j[2])];
+          if ((value > 0) == (other > 0)) continue;
+          double t = value / (value - other);
+          Vec3 q = x;
+          q[k] += t * h;
+          double basis = patch.centralBasis(q);
+          num += patch.valueWithoutCentral(q) * basis;
+          den += basis * basis;
+          ++fitCount;
+        }
+      }
+  CellResult out;
+  const double cCentre = patch.centralBasis(Vec3(0.5, 0.5, 0.5));
+  den += kRidge * cCentre * cCentre * std::max(1, fitCount);
+  double w = fitCount > 0 ? -num / den : 0.0;
+  out.ok = interval.feasible();
+  out.central = out.ok ? interval.clamp(w) : 0.0;
+  if (!std::isfinite(out.central)) out.central = 0;
+  return out;
+}
+
+}  // namespace
+
+double CellReference::value(const Vec3& local) const {
+  if (field) return field->value(geometry->indexToWorld(origin + local)) - isovalue;
+  double wx[4], wy[4], wz[4];
+  catmullRom(local.x(), wx, nullptr);
+  catmullRom(local.y(), wy, nullptr);
+  catmullRom(local.z(), wz, nullptr);
+  double sum = 0;
+  for (int k = 0; k < 4; ++k) {
+    double plane = 0;
+    for (int j = 0; j < 4; ++j) {
+      const double* row = &samples[static_cast<std::size_t>(4 * (j + 4 * k))];
+      plane += wy[j] * (wx[0] * row[0] + wx[1] * row[1] + wx[2] * row[2] + wx[3] * row[3]);
+    }
+    sum += wz[k] * plane;
+  }
+  return sum - isovalue;
+}
+
+Vec3 CellReference::gradient(const Vec3& local) const {
+  if (field) return field->gradient(geometry->indexToWorld(origin + local)).cwiseProduct(geometry->spacing);
+  double w[3][4], d[3][4];
+  for (int a = 0; a < 3; ++a) catmullRom(local[a], w[a], d[a]);
+  Vec3 g = Vec3::Zero();
+  for (int k = 0; k < 4; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 4; ++i) {
+        double s = samples[static_cast<std::size_t>(i + 4 * (j + 4 * k))];
+        g.x() += d[0][i] * w[1][j] * w[2][k] * s;
+        g.y() += w[0][i] * d[1][j] * w[2][k] * s;
+        g.z() += w[0][i] * w[1][j] * d[2][k] * s;
+      }
+  return g;
+}
+
+CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
+                                double isovalue) {
+  CellReference ref;
+  ref.isovalue = isovalue;
+  const auto& dims = grid.geometry.dims;
+  for (int k = 0; k < 4; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 4; ++i)
+        ref.samples[static_cast<std::size_t>(i + 4 * (j + 4 * k))] =
+            grid.at(clampIndex(cell[0] - 1 + i, dims[0]), clampIndex(cell[1] - 1 + j, dims[1]),
+                    clampIndex(cell[2] - 1 + k, dims[2]));
+  return ref;
+}
+
+double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
+                       double isovalue, Vec3& normal) {
+  const auto& dims = grid.geometry.dims;
+  auto sample = [&](std::array<std::int64_t, 3> p) {
+    for (int a = 0; a < 3; ++a) p[a] = clampIndex(p[a], dims[a]);
+    return grid.at(p[0], p[1], p[2]);
+  };
+  auto along = [&](int s) {
+    auto p = point;
+    p[axis] += s;
+    return p;
+  };
+  std::array<double, 4> s;
+  for (int i = 0; i < 4; ++i) s[i] = sample(along(i - 1)) - isovalue;
+  auto cubic = [&](double t) {
+    double w[4];
+    catmullRom(t, w, nullptr);
+    return w[0] * s[0] + w[1] * s[1] + w[2] * s[2] + w[3] * s[3];
+  };
+  const double tLinear = linearCrossing(s[1], s[2], 0.0);
+  // All sign changes of the cubic on [0,1] (16 brackets), each refined by bisection; keep the one nearest the
+  // linear crossing. The end values bracket the isovalue, so there is at least one.
+  constexpr int kBrackets = 16;
+  double best = tLinear, bestGap = kInf;
+  double t0 = 0, c0 = s[1];
+  for (int b = 1; b <= kBrackets; ++b) {
+    double t1 = static_cast<double>(b) / kBrackets, c1 = b == kBrackets ? s[2] : cubic(t1);
+    if ((c0 > 0) != (c1 > 0)) {
+      double lo = t0, hi = t1, flo = c0;
+      for (int it = 0; it < 60; ++it) {
+        double mid = 0.5 * (lo + hi), fm = cubic(mid);
+        if ((fm > 0) == (flo > 0)) {
+          lo = mid;
+          flo = fm;
+        } else {
+          hi = mid;
+        }
+      }
+      double root = 0.5 * (lo + hi);
+      if (std::abs(root - tLinear) < bestGap) {
+        bestGap = std::abs(root - tLinear);
+        best = root;
+      }
+    }
+    t0 = t1;
+    c0 = c1;
+  }
+  // Gradient of the tricubic interpolant at the root: along the edge, the cubic's derivative; across it, the
+  // cubic interpolation of central differences (one-sided at the grid border).
+  double w[4], d[4];
+  catmullRom(best, w, d);
+  Vec3 g = Vec3::Zero();
+  for (int i = 0; i < 4; ++i) g[axis] += d[i] * s[i];
+  for (int other : cube::otherAxes(axis)) {
+    for (int i = 0; i < 4; ++i) {
+      auto p = along(i - 1);
+      p[axis] = clampIndex(p[axis], dims[axis]);
+      auto lo = p, hi = p;
+      if (lo[other] > 0) --lo[other];
+      if (hi[other] + 1 < dims[other]) ++hi[other];
+      double span = static_cast<double>(hi[other] - lo[other]);
+      if (span > 0) g[other] += w[i] * (sample(hi) - sample(lo)) / span;
+    }
+  }
+  Vec3 towardsPositive = Vec3::Unit(axis) * (s[2] > 0 ? 1.0 : -1.0);
+  normal = orientCornerNormal(g, towardsPositive);
+  return best;
+}
+
+FittingStats fitModelPatches(Model& model, const std::function<CellReference(std::size_t)>& reference) {
+  FittingStats stats;
+  const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
+  if (numCells == 0) return stats;
+  // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
+  std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
+  for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
+  std::vector<CellLoops> loops(numCells);
+  tbb::parallel_for(std::size_t(0), numCells, [&](std::size_t c) { loops[c] = model.loops(c); });
+  for (std::size_t c = 0; c < numCells; ++c) {
+    const ModelCell& cell = model.cells[c];
+    for (int k = 0; k < cell.numCorners(); ++k) {
+      std::uint32_t v = model.corners[cell.firstCorner + k];
+      int axis = cube::edgeAxis(loops[c].edges[k]);
+      edgeDirection[v] = Vec3::Unit(axis) * (baseNormal[v][axis] >= 0 ? 1.0 : -1.0);
+    }
+  }
+  // Grid faces with crossings, each with its (one or two) cells; the first cell (lowest index) computes it.
+  const auto& dims = model.geometry.dims;
+  std::vector<FaceEntry> refs;
+  for (std::size_t c = 0; c < numCells; ++c) {
+    const ModelCell& cell = model.cells[c];
+    for (int f = 0; f < 6; ++f) {
+      if (!((loops[c].faceMask >> f) & 1)) continue;
+      std::array<std::uint64_t, 3> p{cell.index[0], cell.index[1], cell.index[2]};
+      p[cube::faceAxis(f)] += static_cast<std::uint64_t>(cube::faceSide(f));
+      FaceEntry e;
+      e.key =
+          ((p[2] * static_cast<std::uint64_t>(dims[1]) + p[1]) * static_cast<std::uint64_t>(dims[0]) + p[0]) *
+              3 +
+          static_cast<std::uint64_t>(cube::faceAxis(f));
+      e.cell[0] = static_cast<std::uint32_t>(c);
+      e.face[0] = static_cast<std::int8_t>(f);
+      e.count = 1;
+      refs.push_back(e);
+    }
+  }
+  std::sort(refs.begin(), refs.end(), [](const FaceEntry& a, const FaceEntry& b) {
+    return a.key != b.key ? a.key < b.key : a.cell[0] < b.cell[0];
+  });
+  std::vector<FaceEntry> faces;
+  for (const FaceEntry& e : refs) {
+    if (!faces.empty() && faces.back().key == e.key && faces.back().count < 2) {
+      faces.back().cell[1] = e.cell[0];
+      faces.back().face[1] = e.face[0];
+      faces.back().count = 2;
+    } else {
+      faces.push_back(e);
+    }
+  }
+  refs.clear();
+  refs.shrink_to_fit();
+  // Faces of each cell (index into `faces`), for dirtiness propagation.
+  std::vector<std::array<std::int32_t, 6>> cellFaces(numCells);
+  for (auto& cf : cellFaces) cf.fill(-1);
+  for (std::size_t i = 0; i < faces.size(); ++i)
+    for (int s = 0; s < faces[i].count; ++s)
+      cellFaces[faces[i].cell[s]][faces[i].face[s]] = static_cast<std::int32_t>(i);
+
+  std::vector<std::uint8_t> level(numVertices, 0), bump(numVertices, 0);
+  std::vector<std::uint8_t> faceDirty(faces.size(), 1), cellDirty(numCells, 1);
+  std::vector<std::uint8_t> faceOk(faces.size(), 1), cellOk(numCells, 1);
+  std::vector<double> faceCoefficient(faces.size(), 0.0);
+  auto cellVertex = [&](std::size_t c, int k) { return model.corners[model.cells[c].firstCorner + k]; };
+  for (int round = 0;; ++round) {
+    stats.rounds = round + 1;
+    tbb::parallel_for(std::size_t(0), numVertices, [&](std::size_t v) {
+      double beta = kBlend[level[v]];
+      Vec3 n = (1 - beta) * baseNormal[v] + beta * edgeDirection[v];
+      model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edgeDirection[v];
+    });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, faces.size(), 64),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t i = r.begin(); i != r.end(); ++i) {
+                          if (!faceDirty[i]) continue;
+                          FaceResult fr = fitFace(model, faces[i], reference(faces[i].cell[0]));
+                          faceCoefficient[i] = fr.coefficient;
+                          faceOk[i] = fr.ok;
+                        }
+                      });
+    for (std::size_t i = 0; i < faces.size(); ++i)
+      if (faceDirty[i])
+        for (int s = 0; s < faces[i].count; ++s)
+          model.cells[faces[i].cell[s]].faceCoefficient[faces[i].face[s]] = faceCoefficient[i];
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numCells, 32),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t c = r.begin(); c != r.end(); ++c) {
+                          if (!cellDirty[c]) continue;
+                          model.cells[c].central = 0;
+                          CellResult cr = fitCell(model, c, reference(c));
+                          model.cells[c].central = cr.central;
+                          cellOk[c] = cr.ok;
+                        }
+                      });
+    // Isovertices of failed faces and cells move one blend level towards the edge direction.
+    std::fill(bump.begin(), bump.end(), 0);
+    bool any = false;
+    auto mark = [&](std::size_t c, std::uint16_t edgeMask) {
+      const ModelCell& cell = model.cells[c];
+      for (int k = 0; k < cell.numCorners(); ++k) {
+        if (!((edgeMask >> loops[c].edges[k]) & 1)) continue;
+        std::uint32_t v = cellVertex(c, k);
+        if (level[v] < kMaxLevel) {
+          bump[v] = 1;
+          any = true;
+        }
+      }
+    };
+    for (std::size_t i = 0; i < faces.size(); ++i) {
+      if (faceOk[i]) continue;
+      std::uint16_t mask = 0;
+      for (int k = 0; k < 4; ++k)
+        mask = static_cast<std::uint16_t>(mask | (1u << cube::faceEdge(faces[i].face[0], k)));
+      mark(faces[i].cell[0], mask);
+    }
+    for (std::size_t c = 0; c < numCells; ++c)
+      if (!cellOk[c]) mark(c, 0xFFF);
+    if (!any) break;
+    for (std::size_t v = 0; v < numVertices; ++v) level[v] = static_cast<std::uint8_t>(level[v] + bump[v]);
+    std::fill(faceDirty.begin(), faceDirty.end(), 0);
+    std::fill(cellDirty.begin(), cellDirty.end(), 0);
+    for (std::size_t c = 0; c < numCells; ++c) {
+      const ModelCell& cell = model.cells[c];
+      for (int k = 0; k < cell.numCorners() && !cellDirty[c]; ++k)
+        if (bump[cellVertex(c, k)]) cellDirty[c] = 1;
+      if (!cellDirty[c]) continue;
+      for (int f = 0; f < 6; ++f)
+        if (cellFaces[c][f] >= 0) faceDirty[static_cast<std::size_t>(cellFaces[c][f])] = 1;
+    }
+    // A face whose coefficient changes changes its other cell too.
+    for (std::size_t i = 0; i < faces.size(); ++i)
+      if (faceDirty[i])
+        for (int s = 0; s < faces[i].count; ++s) cellDirty[faces[i].cell[s]] = 1;
+  }
+  for (std::size_t v = 0; v < numVertices; ++v) {
+    stats.blendedVertices += level[v] > 0;
+    ++stats.levelCount[level[v]];
+  }
+  for (auto ok : faceOk) stats.failedFaces += !ok;
+  for (auto ok : cellOk) stats.failedCells += !ok;
+  return stats;
+}
+
+}  // namespace cip
