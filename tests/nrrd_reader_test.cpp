@@ -135,6 +135,7 @@ TEST(NrrdHeader, CorruptHeaders) {
   bad("", {"empty"});
   bad("P6\n1 1\n", {"not a NRRD file"});
   bad("NRRD0009\n", {"not a NRRD file"});
+  bad(std::string(100000, '\x01'), {"not a NRRD file"});
   bad(head + "dimension 3\n", {"line 3", "expected 'field: value'"});
   bad(head + "dimension: 3\ndimension: 3\n", {"line 4", "twice"});
   bad(head + "dimension: 2\nsizes: 4 4\n" + tail, {"line 3", "dimension 2"});

@@ -136,7 +136,8 @@ TEST(VdbReader, SphereLevelSet) {
   EXPECT_NE(v.description.find("ls_sphere"), std::string::npos);
   EXPECT_NE(v.description.find("level set"), std::string::npos);
   EXPECT_EQ(v.dense(), nullptr);
-  // Bricks away from the shell (box corners, sphere centre) are left out: fewer than the 8^3 bricks of the box.
+  // Bricks away from the shell (box corners, sphere centre) are left out: fewer than the 8^3 bricks of the
+  // box.
   EXPECT_LT(v.bricks.size(), 8u * 8 * 8);
   EXPECT_GT(v.bricks.size(), 100u);
   auto tree = loadTree(path, "ls_sphere");
@@ -258,7 +259,12 @@ TEST(VdbReader, GridsWithoutActiveVoxelsOrWithRotations) {
   dbl->tree().setValue(openvdb::Coord(40, 0, 7),
                        -1.5);  // two far-apart voxels: two separate clusters of bricks
   dbl->setTransform(openvdb::math::Transform::createLinearTransform(2.0));
-  openvdb::GridPtrVec grids{vec, empty, rotated, dbl};
+  auto tiles = openvdb::FloatGrid::create(0.0f);
+  tiles->setName("tiles");
+  tiles->fill(openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(15)), 2.0f,
+              true);  // whole leaves: active tiles
+  tiles->tree().setValue(openvdb::Coord(-1, 0, 0), 1.0f);
+  openvdb::GridPtrVec grids{vec, empty, rotated, dbl, tiles};
   openvdb::io::File(dir.file("g.vdb")).write(grids);
 
   const std::string path = dir.file("g.vdb");
@@ -278,6 +284,13 @@ TEST(VdbReader, GridsWithoutActiveVoxelsOrWithRotations) {
   EXPECT_EQ(v.bricks.size(), 2u);  // the bricks between the two voxels are left out
   EXPECT_EQ(v.grids[0].at(1, 1, 1), 3.5);
   EXPECT_NE(v.description.find("double"), std::string::npos);
+  // Active tiles are covered like voxels.
+  ASSERT_GT(tiles->tree().activeTileCount(), 0u);
+  o.gridName = "tiles";
+  SparseVolume t = readVdb(path, o);
+  EXPECT_EQ(t.geometry.dims, (std::array<std::int64_t, 3>{19, 18, 18}));
+  EXPECT_EQ(t.ownedCellCount(), 18 * 17 * 17);  // every cell has an active corner
+  EXPECT_EQ(t.bricks.size(), 27u);
   // Default grid: the first float or double grid (the vector grid is skipped), here the empty one.
   expectError([&] { readVdb(path, VdbReadOptions{}); }, {path, "'empty' has no active voxels"});
 }

@@ -210,6 +210,10 @@ DenseGrid readNifti(const std::string& path, std::size_t maxBytes) {
   DenseGrid grid;
   std::unique_ptr<ByteSource> source;
   if (gz) {
+    if (h.dataOffset > (std::uint64_t(1) << 30)) {
+      throw Error(path + ": vox_offset " + std::to_string(h.dataOffset) +
+                  " is too large for compressed data (at most 1 GiB)");
+    }
     grid.allocate(h.dims, maxBytes);
     source = std::make_unique<GzipByteSource>(path, 0);
     if (source->skip(h.dataOffset) != h.dataOffset) {

@@ -16,6 +16,9 @@ namespace cip {
 
 namespace {
 
+/// Inflating more than this just to skip it is refused (a bogus header could otherwise keep a reader busy).
+constexpr std::int64_t kMaxCompressedSkip = std::int64_t(1) << 30;
+
 std::string trim(std::string_view s) {
   std::size_t b = 0, e = s.size();
   while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
@@ -138,6 +141,20 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
     std::size_t end = nl == std::string_view::npos ? text.size() : nl;
     std::size_t next = nl == std::string_view::npos ? text.size() : nl + 1;
     ++lineNo;
+    if (lineNo == 1) {
+      std::string_view magic = text.substr(pos, std::min<std::size_t>(end - pos, 9));
+      if (!magic.empty() && magic.back() == '\r') magic.remove_suffix(1);
+      if (magic.size() != 8 || magic.substr(0, 7) != "NRRD000" || magic[7] < '1' || magic[7] > '5') {
+        std::string shown;
+        for (char c : text.substr(pos, std::min<std::size_t>(end - pos, 16))) {
+          shown += std::isprint(static_cast<unsigned char>(c)) ? c : '?';
+        }
+        throw Error("not a NRRD file (starts with '" + shown + "', expected NRRD0001..NRRD0005)");
+      }
+      h.version = magic[7] - '0';
+      pos = next;
+      continue;
+    }
     if (end - pos > kNrrdMaxLineBytes) {
       fail(lineNo, "line longer than " + std::to_string(kNrrdMaxLineBytes) + " bytes (not a NRRD header?)");
     }
@@ -149,14 +166,6 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
     if (!raw.empty() && raw.back() == '\r') raw.remove_suffix(1);
     pos = next;
     if (raw.find('\0') != std::string_view::npos) fail(lineNo, "binary data in header (missing blank line?)");
-    if (lineNo == 1) {
-      if (raw.size() != 8 || raw.substr(0, 7) != "NRRD000" || raw[7] < '1' || raw[7] > '5') {
-        throw Error("not a NRRD file (first line is '" + std::string(raw.substr(0, 40)) +
-                    "', expected NRRD0001..NRRD0005)");
-      }
-      h.version = raw[7] - '0';
-      continue;
-    }
     if (raw.empty()) {
       blank = true;
       break;
@@ -333,6 +342,9 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
     h.byteSkip = parseInteger(f->value, f->line, "byte skip");
     if (h.byteSkip < -1) fail(f->line, "byte skip must be -1 or more");
     if (h.byteSkip == -1 && h.encoding != NrrdEncoding::Raw) fail(f->line, "byte skip -1 needs raw encoding");
+    if (h.encoding == NrrdEncoding::Gzip && h.byteSkip > kMaxCompressedSkip) {
+      fail(f->line, "byte skip " + f->value + " is too large for compressed data (at most 1 GiB)");
+    }
   }
   if (const Field* f = get("lineskip")) {
     h.lineSkip = parseInteger(f->value, f->line, "line skip");
