@@ -2,6 +2,8 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <string>
+#include <tuple>
 
 #include "cip/analytic_field.h"
 #include "cip/continuity_check.h"
@@ -16,13 +18,20 @@ using namespace cip;
 // crack would be ~1e-3 voxel and more).
 constexpr double kMaxGap = 1e-9, kMaxAngle = 1e-6;
 
-class ContinuityOnRandomVolumes : public ::testing::TestWithParam<NormalMode> {};
+// Every normal mode with every coefficient construction (PatchMethod).
+using ModeAndMethod = std::tuple<NormalMode, PatchMethod>;
+std::string modeAndMethodName(const ::testing::TestParamInfo<ModeAndMethod>& param) {
+  return std::string(toString(std::get<0>(param.param))) + "_" + toString(std::get<1>(param.param));
+}
+
+class ContinuityOnRandomVolumes : public ::testing::TestWithParam<ModeAndMethod> {};
 
 TEST_P(ContinuityOnRandomVolumes, NeighboursShareZeroSetAndNormals) {
   for (unsigned seed : {1u, 2u, 3u}) {
     DenseGrid g = test::randomVolume(9, seed);
     BuildOptions o;
-    o.normals = GetParam();
+    o.normals = std::get<0>(GetParam());
+    o.method = std::get<1>(GetParam());
     o.central =
         seed == 3 ? CentralRule::Interior : CentralRule::Zero;  // the central term vanishes on every face
     Model m = buildModel(g, o);
@@ -42,14 +51,18 @@ TEST_P(ContinuityOnRandomVolumes, NeighboursShareZeroSetAndNormals) {
 }
 
 INSTANTIATE_TEST_SUITE_P(NormalModes, ContinuityOnRandomVolumes,
-                         ::testing::Values(NormalMode::Edge, NormalMode::Gradient),
-                         [](const auto& info) { return std::string(toString(info.param)); });
+                         ::testing::Combine(::testing::Values(NormalMode::Edge, NormalMode::Gradient),
+                                            ::testing::Values(PatchMethod::Paper, PatchMethod::Fitted)),
+                         modeAndMethodName);
 
-TEST(Continuity, ExactGyroid) {
+class ContinuityExactGyroid : public ::testing::TestWithParam<PatchMethod> {};
+
+TEST_P(ContinuityExactGyroid, NeighboursShareZeroSetAndNormals) {
   auto field = makeAnalyticField("gyroid");
   DenseGrid g = sampleField(*field, 12, "gyroid");
   BuildOptions o;
   o.normals = NormalMode::Exact;
+  o.method = GetParam();
   o.exactField = field.get();
   Model m = buildModel(g, o);
   ContinuityStats s = measureContinuity(m);
@@ -59,13 +72,21 @@ TEST(Continuity, ExactGyroid) {
   EXPECT_EQ(s.signDisagreements, 0);
 }
 
-class LinearField : public ::testing::TestWithParam<NormalMode> {};
+std::string methodName(const ::testing::TestParamInfo<PatchMethod>& param) {
+  return toString(param.param);
+}
+
+INSTANTIATE_TEST_SUITE_P(Methods, ContinuityExactGyroid,
+                         ::testing::Values(PatchMethod::Paper, PatchMethod::Fitted), methodName);
+
+class LinearField : public ::testing::TestWithParam<ModeAndMethod> {};
 
 TEST_P(LinearField, ReproducedExactlyByEveryCell) {
   auto field = makeAnalyticField("plane");
   DenseGrid g = sampleField(*field, 8, "plane");
   BuildOptions o;
-  o.normals = GetParam();
+  o.normals = std::get<0>(GetParam());
+  o.method = std::get<1>(GetParam());
   o.exactField = field.get();
   Model m = buildModel(g, o);
   ASSERT_GT(m.cells.size(), 20u);
@@ -82,7 +103,9 @@ TEST_P(LinearField, ReproducedExactlyByEveryCell) {
       Vec3 x(u(rng), u(rng), u(rng));
       double l = planeValue(x), value = p.value(x);
       // Same sign everywhere in the cell (the patch is the plane times a positive factor).
-      if (std::abs(l) > 1e-9) EXPECT_EQ(value > 0, l > 0) << "cell " << c;
+      if (std::abs(l) > 1e-9) {
+        EXPECT_EQ(value > 0, l > 0) << "cell " << c;
+      }
       // Points on the plane are zeros: project x onto the plane (world), back to cell-local.
       Vec3 w = m.geometry.indexToWorld(origin + x);
       Vec3 onPlane = m.geometry.worldToIndex(w - l / n.squaredNorm() * n) - origin;
@@ -97,5 +120,7 @@ TEST_P(LinearField, ReproducedExactlyByEveryCell) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(NormalModes, LinearField, ::testing::Values(NormalMode::Gradient, NormalMode::Exact),
-                         [](const auto& info) { return std::string(toString(info.param)); });
+INSTANTIATE_TEST_SUITE_P(NormalModes, LinearField,
+                         ::testing::Combine(::testing::Values(NormalMode::Gradient, NormalMode::Exact),
+                                            ::testing::Values(PatchMethod::Paper, PatchMethod::Fitted)),
+                         modeAndMethodName);

@@ -48,6 +48,22 @@ std::int64_t clampIndex(std::int64_t i, std::int64_t n) {
   return std::clamp<std::int64_t>(i, 0, n - 1);
 }
 
+/// Sample at grid point p, extended linearly by one point beyond the grid along each axis (so that linear
+/// fields stay linear up to the border), clamped further out.
+double extendedSample(const DenseGrid& grid, std::array<std::int64_t, 3> p) {
+  const auto& dims = grid.geometry.dims;
+  for (int a = 0; a < 3; ++a) {
+    if (dims[a] >= 2 && (p[a] == -1 || p[a] == dims[a])) {
+      auto inner = p, next = p;
+      inner[a] = p[a] < 0 ? 0 : dims[a] - 1;
+      next[a] = p[a] < 0 ? 1 : dims[a] - 2;
+      return 2 * extendedSample(grid, inner) - extendedSample(grid, next);
+    }
+  }
+  for (int a = 0; a < 3; ++a) p[a] = clampIndex(p[a], dims[a]);
+  return grid.at(p[0], p[1], p[2]);
+}
+
 /// Interval of a coefficient w with sign(s) * (a + w b) > 0 for all added constraints (b >= 0).
 struct Interval {
   double lo = -kInf, hi = kInf;
@@ -257,23 +273,18 @@ CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int
                                 double isovalue) {
   CellReference ref;
   ref.isovalue = isovalue;
-  const auto& dims = grid.geometry.dims;
   for (int k = 0; k < 4; ++k)
     for (int j = 0; j < 4; ++j)
       for (int i = 0; i < 4; ++i)
         ref.samples[static_cast<std::size_t>(i + 4 * (j + 4 * k))] =
-            grid.at(clampIndex(cell[0] - 1 + i, dims[0]), clampIndex(cell[1] - 1 + j, dims[1]),
-                    clampIndex(cell[2] - 1 + k, dims[2]));
+            extendedSample(grid, {cell[0] - 1 + i, cell[1] - 1 + j, cell[2] - 1 + k});
   return ref;
 }
 
 double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
                        double isovalue, Vec3& normal) {
   const auto& dims = grid.geometry.dims;
-  auto sample = [&](std::array<std::int64_t, 3> p) {
-    for (int a = 0; a < 3; ++a) p[a] = clampIndex(p[a], dims[a]);
-    return grid.at(p[0], p[1], p[2]);
-  };
+  auto sample = [&](const std::array<std::int64_t, 3>& p) { return extendedSample(grid, p); };
   auto along = [&](int s) {
     auto p = point;
     p[axis] += s;

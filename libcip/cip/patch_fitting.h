@@ -36,7 +36,8 @@ struct CellReference {
   const GridGeometry* geometry = nullptr;
   Vec3 origin = Vec3::Zero();  ///< cell origin, index coordinates
   double isovalue = 0;
-  /// Samples at cell-local grid points -1..2 per axis (x fastest), already clamped to the available grid.
+  /// Samples at cell-local grid points -1..2 per axis (x fastest), extended linearly one point beyond the
+  /// grid.
   std::array<double, 64> samples{};
 
   double value(const Vec3& local) const;
@@ -45,7 +46,8 @@ struct CellReference {
 };
 
 /// Gathers a cell's tricubic stencil from a dense grid: `cell` is the cell's lowest point in the grid's own
-/// indices; indices outside the grid are clamped to it.
+/// indices; a point one step outside the grid is extrapolated linearly along that axis (linear fields stay
+/// exact).
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                                 double isovalue);
 
