@@ -274,6 +274,60 @@ TEST(FirstRoot, NearMissesAreMisses) {
   EXPECT_NEAR(r->t, 0.5 - 1e-6, 1e-12);
 }
 
+TEST(FirstCrossing, SkipsEvenMultiplicityZeros) {
+  // (t - 0.3)^2 (t - 0.8): the touch at 0.3 is skipped, the crossing at 0.8 found.
+  Spec spec{{SpecTerm{1.0, {{LinearFactor{-0.3, 1}, 2}, {LinearFactor{-0.8, 1}, 1}}}}};
+  RayPolynomial p = spec.build();
+  auto touch = firstRoot(p, 0.0, 1.0);
+  ASSERT_TRUE(touch);
+  EXPECT_NEAR(touch->t, 0.3, 1e-14);
+  auto crossing = firstCrossing(p, 0.0, 1.0);
+  ASSERT_TRUE(crossing);
+  EXPECT_NEAR(crossing->t, 0.8, 1e-15);
+  // A crossing exactly at either end is kept (the sign is tested just beyond the end).
+  auto atEnd = firstCrossing(p, 0.5, 0.8);
+  ASSERT_TRUE(atEnd);
+  EXPECT_EQ(atEnd->t, 0.8);
+  auto atStart = firstCrossing(p, 0.8, 1.0);
+  ASSERT_TRUE(atStart);
+  EXPECT_EQ(atStart->t, 0.8);
+  // A touch at the end is not a crossing.
+  EXPECT_FALSE(firstCrossing(p, 0.0, 0.3));
+  // Identically zero: no crossing.
+  Spec zero{{SpecTerm{0.0, {}}}};
+  EXPECT_FALSE(firstCrossing(zero.build(), 0.0, 1.0));
+}
+
+TEST(FirstCrossing, PatchZerosAtCubeVerticesAndEdgesAreSkipped) {
+  auto field = makeAnalyticField("sphere");
+  DenseGrid grid = sampleField(*field, 8, "sphere");
+  BuildOptions options;
+  options.normals = NormalMode::Exact;
+  options.exactField = field.get();
+  Model model = buildModel(grid, options);
+  RootSearchOptions crossings;
+  crossings.crossingsOnly = true;
+  int checked = 0;
+  for (std::size_t c = 0; c < model.cells.size(); ++c) {
+    const CornerPatch patch = model.patch(c);
+    // Faces x = 0, y = 0 and z = 0 all bounding planes: every term vanishes at the vertex (0,0,0).
+    if ((patch.faceMask & 0x15) != 0x15) continue;
+    ++checked;
+    // A ray through the vertex (0,0,0) diagonally into the cell: value 0 at the vertex, no sign change there.
+    EXPECT_EQ(patch.value(Vec3::Zero()), 0.0);
+    auto any = intersectRayPatch(patch, Vec3(-0.5, -0.5, -0.5), Vec3(1, 1, 1), 0, 0.5 + 1e-12);
+    ASSERT_TRUE(any);
+    EXPECT_NE(any->kind, RootKind::Bracketed);
+    const double v = patch.value(Vec3::Constant(0.01));
+    auto crossing =
+        intersectRayPatch(patch, Vec3(-0.5, -0.5, -0.5), Vec3(1, 1, 1), 0, 0.5 + 1e-12, crossings);
+    if (crossing) {
+      EXPECT_LT(v * patch.value(Vec3::Constant(-0.01)), 0);
+    }
+  }
+  EXPECT_GT(checked, 0);
+}
+
 TEST(FirstRoot, DegenerateInputs) {
   Spec zero{{SpecTerm{0.0, {}}}};
   auto r = firstRoot(zero.build(), 0.2, 0.7);  // identically zero: a hit at the start

@@ -270,6 +270,22 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
   return std::nullopt;
 }
 
+std::optional<Root> firstCrossing(const RayPolynomial& p, double t0, double t1,
+                                  const RootSearchOptions& options, RootSearchStats* stats) {
+  if (!(t0 <= t1)) return std::nullopt;
+  const double e = std::max(1e-9 * (t1 - t0), 4 * kEps * std::max(std::abs(t0), std::abs(t1)));
+  double start = t0;
+  for (int attempt = 0; attempt < 16; ++attempt) {
+    auto root = firstRoot(p, start, t1, options, stats);
+    if (!root || root->kind == RootKind::Bracketed) return root;
+    const double before = p.value(root->t - e), after = p.value(root->t + e);
+    if (before != 0 && after != 0 && (before < 0) != (after < 0)) return root;
+    start = root->t + e;  // an even-multiplicity zero (or a stretch where p vanishes): look further on
+    if (!(start <= t1)) return std::nullopt;
+  }
+  return std::nullopt;
+}
+
 RayPolynomial rayPolynomial(const CornerPatch& patch, const Vec3& origin, const Vec3& direction) {
   RayPolynomial poly;
   std::array<PatchTerm, CornerPatch::kMaxTerms> terms;
@@ -330,7 +346,8 @@ std::optional<Root> intersectRayPatch(const CornerPatch& patch, const Vec3& orig
   double t0 = 0, t1 = 0;
   if (!clipRayToCell(origin, direction, tMin, tMax, t0, t1, pad)) return std::nullopt;
   const RayPolynomial poly = rayPolynomial(patch, origin + t0 * direction, direction);
-  auto root = firstRoot(poly, 0.0, t1 - t0, options, stats);
+  auto root = options.crossingsOnly ? firstCrossing(poly, 0.0, t1 - t0, options, stats)
+                                    : firstRoot(poly, 0.0, t1 - t0, options, stats);
   if (!root) return std::nullopt;
   root->t = std::min(t0 + root->t, t1);
   return root;

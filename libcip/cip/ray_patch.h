@@ -91,6 +91,8 @@ struct RootSearchOptions {
   int maxIntervals = 4096;
   /// Newton / bisection iterations for one bracketed root.
   int maxRefineIterations = 200;
+  /// intersectRayPatch only: report only zeros where the polynomial changes sign (see firstCrossing).
+  bool crossingsOnly = false;
 };
 
 /// Counters of one or more searches (add them up across calls; not thread-safe, keep one per thread).
@@ -117,6 +119,15 @@ struct Root {
 /// First root of `p` in the closed interval [t0, t1] (t0 <= t1), or nothing. Deterministic.
 std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1,
                               const RootSearchOptions& options = {}, RootSearchStats* stats = nullptr);
+
+/// First zero of `p` in [t0, t1] at which p changes sign: like firstRoot, but a zero found at an interval end
+/// or as a touch is accepted only if p(t - e) and p(t + e) are non-zero with opposite signs, e = 1e-9 (t1 -
+/// t0) (evaluated beyond [t0, t1] when t is at an end); otherwise the search resumes after t + e.
+/// Even-multiplicity zeros are skipped: tangent grazes, and the zeros every corner patch has at the cube
+/// vertices and along the edges shared by two bounding planes that no corner lies on (each term has a squared
+/// bounding plane vanishing there).
+std::optional<Root> firstCrossing(const RayPolynomial& p, double t0, double t1,
+                                  const RootSearchOptions& options = {}, RootSearchStats* stats = nullptr);
 
 /// The patch restricted to the ray origin + t * direction (cell-local coordinates; t in units of
 /// |direction|): one factor per face plane of the patch and per corner plane used, one term per patch term.

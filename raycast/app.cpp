@@ -1,0 +1,137 @@
+#include "app.h"
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <nlohmann/json.hpp>
+
+#include "cip/atomic_file.h"
+#include "cip/error.h"
+#include "cip/model_file.h"
+#include "cip/ply.h"
+#include "cip/progress_bar.h"
+#include "image_output.h"
+#include "mesh_scene.h"
+#include "patch_scene.h"
+#include "renderer.h"
+
+namespace cip::raycast {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double secondsSince(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+std::optional<Vec3> vec3(const std::vector<double>& v, const char* what) {
+  if (v.empty()) return std::nullopt;
+  if (v.size() != 3) throw Error(std::string(what) + " needs three comma-separated numbers, e.g. 1,2,3");
+  return Vec3(v[0], v[1], v[2]);
+}
+
+}  // namespace
+
+std::pair<int, int> parseSize(const std::string& text) {
+  int w = 0, h = 0;
+  char x = 0, extra = 0;
+  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 1 ||
+      h < 1 || w > 32768 || h > 32768)
+    throw Error("--size '" + text + "' is not WxH with sizes from 1 to 32768 (e.g. 800x600)");
+  return {w, h};
+}
+
+int runApp(const AppOptions& opt) {
+  // Validate everything cheap before the expensive work.
+  const auto [width, height] = parseSize(opt.size);
+  if (opt.spp < 1 || opt.spp > 4096) throw Error("--spp must be between 1 and 4096");
+  if (opt.output.empty()) throw Error("no output file (-o image.exr)");
+  RenderOptions render;
+  render.samplesPerPixel = opt.spp;
+  render.threads = opt.threads;
+  render.shading.mode = parseShadingMode(opt.shading);
+  render.shading.shadows = opt.shadows;
+  if (!opt.curvatureRange.empty()) {
+    if (opt.curvatureRange.size() != 2 || !(opt.curvatureRange[0] < opt.curvatureRange[1]))
+      throw Error("--curvature-range needs two increasing numbers, e.g. -2,2");
+    render.shading.curvatureRange = std::make_pair(opt.curvatureRange[0], opt.curvatureRange[1]);
+  }
+  CameraSettings cam;
+  cam.eye = vec3(opt.eye, "--eye");
+  cam.look = vec3(opt.look, "--look");
+  cam.up = vec3(opt.up, "--up");
+  cam.fovDegrees = opt.fov;
+  cam.orthographic = opt.ortho;
+
+  // Load and build the scene.
+  const auto t0 = Clock::now();
+  Model model;
+  TriangleMesh mesh;
+  std::unique_ptr<RenderScene> scene;
+  std::string input;
+  if (!opt.mesh.empty()) {
+    if (!opt.model.empty()) throw Error("give either a model file or --mesh, not both");
+    input = opt.mesh;
+    mesh = readPly(opt.mesh);
+    scene = std::make_unique<MeshScene>(mesh);
+  } else {
+    if (opt.model.empty()) throw Error("no input: give a model file (.cip) or --mesh mesh.ply");
+    input = opt.model;
+    model = readModel(opt.model);
+    scene = std::make_unique<PatchScene>(model);
+  }
+  const double buildSeconds = secondsSince(t0);
+  const Camera camera = makeCamera(cam, scene->bounds(), width, height);
+
+  RenderStats stats;
+  RenderImage image;
+  {
+    ProgressBar bar("rendering", !opt.quiet);
+    render.progress = [&](double f) { bar.update(f); };
+    image = cip::raycast::render(*scene, camera, render, &stats);
+  }
+  writeExr(image, opt.output);
+  if (!opt.png.empty()) writePng(image, opt.png);
+
+  const double rays = static_cast<double>(stats.primaryRays + stats.shadowRays);
+  if (!opt.quiet) {
+    std::fprintf(
+        stderr,
+        "%s: %dx%d, %d spp, %zu primitives, %lld hit pixels, scene %.3f s, render %.3f s (%.3g rays/s)\n",
+        opt.output.c_str(), width, height, opt.spp, scene->primitives(),
+        static_cast<long long>(stats.hitPixels), buildSeconds, stats.seconds,
+        stats.seconds > 0 ? rays / stats.seconds : 0.0);
+    if (render.shading.mode == ShadingMode::Curvature)
+      std::fprintf(stderr, "curvature range: %g,%g (1/world units; blue = low, red = high)\n",
+                   stats.curvatureLo, stats.curvatureHi);
+  }
+  if (!opt.statsJson.empty()) {
+    nlohmann::json j;
+    j["input"] = input;
+    j["output"] = opt.output;
+    j["size"] = {width, height};
+    j["spp"] = opt.spp;
+    j["threads"] = stats.threads;
+    j["primitives"] = scene->primitives();
+    j["shading"] = toString(render.shading.mode);
+    j["shadows"] = opt.shadows;
+    j["seconds"] = {{"scene_build", buildSeconds}, {"render", stats.seconds}};
+    j["rays"] = {{"primary", stats.primaryRays}, {"shadow", stats.shadowRays}};
+    j["rays_per_second"] = stats.seconds > 0 ? rays / stats.seconds : 0.0;
+    j["hit_pixels"] = stats.hitPixels;
+    j["camera"] = {{"eye", {camera.eye().x(), camera.eye().y(), camera.eye().z()}},
+                   {"look", {camera.look().x(), camera.look().y(), camera.look().z()}},
+                   {"up", {camera.up().x(), camera.up().y(), camera.up().z()}},
+                   {"fov", camera.fovDegrees()},
+                   {"orthographic", camera.orthographic()}};
+    if (render.shading.mode == ShadingMode::Curvature)
+      j["curvature_range"] = {stats.curvatureLo, stats.curvatureHi};
+    const std::string text = j.dump(2) + "\n";
+    writeFileAtomically(opt.statsJson, [&](std::FILE* f) { writeBytes(f, text.data(), text.size()); });
+  }
+  return 0;
+}
+
+}  // namespace cip::raycast

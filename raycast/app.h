@@ -1,0 +1,38 @@
+/// @file app.h
+/// @brief The raycast command: options as given on the command line, and running them (load, build, render,
+/// write).
+#pragma once
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "shading.h"
+
+namespace cip::raycast {
+
+struct AppOptions {
+  std::string model;             ///< .cip model file (unless mesh is set)
+  std::string mesh;              ///< PLY mesh file (--mesh)
+  std::string output;            ///< EXR file (-o)
+  std::string png;               ///< optional PNG preview
+  std::string size = "800x600";  ///< WxH
+  int spp = 1;
+  std::vector<double> eye, look, up;  ///< empty or 3 numbers (world)
+  double fov = 35;
+  bool ortho = false;
+  std::string shading = "phong";
+  bool shadows = false;
+  std::vector<double> curvatureRange;  ///< empty or 2 numbers
+  int threads = 0;
+  std::string statsJson;
+  bool quiet = false;
+};
+
+/// Parses "WxH" (e.g. 1920x1080); throws cip::Error on anything else or sizes outside 1..32768.
+std::pair<int, int> parseSize(const std::string& text);
+
+/// Runs the command; returns the exit status. Throws cip::Error for bad input (files, options); in that case
+/// no output file has been created or changed.
+int runApp(const AppOptions& options);
+
+}  // namespace cip::raycast

@@ -1,0 +1,191 @@
+#include "patch_scene.h"
+
+#include <tbb/parallel_for.h>
+
+#include <cmath>
+
+#include "cip/ray_patch.h"
+
+namespace cip::raycast {
+
+namespace {
+
+/// Cell boxes given to Embree are enlarged by this many cell units (plus float rounding) so that
+/// single-precision traversal never culls a cell that the double-precision clip would accept.
+constexpr double kBoundsPad = 1e-3;
+
+/// Extends Embree's context with the double-precision ray and the closest hit so far. Embree passes the
+/// context pointer through to the callbacks unchanged.
+struct PatchRayContext {
+  RTCIntersectContext embree;  // must be first
+  const PatchScene* scene = nullptr;
+  Ray ray;
+  double tNear = 0;
+  double tFar = 0;
+  double bestT = 0;  ///< closest hit so far
+  std::uint32_t bestCell = 0;
+  bool found = false;
+};
+
+void patchBounds(const RTCBoundsFunctionArguments* args) {
+  const auto* scene = static_cast<const PatchScene*>(args->geometryUserPtr);
+  const Model& m = scene->model();
+  const Vec3 cell = m.cellOrigin(args->primID);
+  const Vec3 lo = m.geometry.indexToWorld(cell - Vec3::Constant(kBoundsPad));
+  const Vec3 hi = m.geometry.indexToWorld(cell + Vec3::Constant(1 + kBoundsPad));
+  RTCBounds* b = args->bounds_o;
+  b->lower_x = roundDownToFloat(lo.x() - 1e-6 * std::abs(lo.x()));
+  b->lower_y = roundDownToFloat(lo.y() - 1e-6 * std::abs(lo.y()));
+  b->lower_z = roundDownToFloat(lo.z() - 1e-6 * std::abs(lo.z()));
+  b->upper_x = roundUpToFloat(hi.x() + 1e-6 * std::abs(hi.x()));
+  b->upper_y = roundUpToFloat(hi.y() + 1e-6 * std::abs(hi.y()));
+  b->upper_z = roundUpToFloat(hi.z() + 1e-6 * std::abs(hi.z()));
+}
+
+/// First root of the cell's patch on the context's double ray within [tNear, tFar] (the caller's interval,
+/// not the closest hit so far: each cell's answer is then a function of the ray and the cell alone, whatever
+/// order Embree visits the cells in), or nothing.
+std::optional<Root> cellRoot(const PatchRayContext& ctx, std::uint32_t cell) {
+  const PatchScene& s = *ctx.scene;
+  const Vec3 origin = s.worldToLocal(ctx.ray.origin, cell);
+  const Vec3 direction =
+      ctx.ray.direction.cwiseQuotient(s.model().geometry.spacing);  // same t as the world ray
+  RootSearchOptions options;
+  options.crossingsOnly = true;  // the surface separates value > isovalue from value < isovalue
+  return intersectRayPatch(s.patch(cell), origin, direction, ctx.tNear, ctx.tFar, options);
+}
+
+void patchIntersect(const RTCIntersectFunctionNArguments* args) {
+  if (args->N != 1 || !args->valid[0]) return;
+  auto* ctx = reinterpret_cast<PatchRayContext*>(args->context);
+  auto root = cellRoot(*ctx, args->primID);
+  // Closest root wins; equal roots (a point on a shared face) go to the lower cell index, independent of
+  // visit order.
+  if (!root) return;
+  if (ctx->found && !(root->t < ctx->bestT || (root->t == ctx->bestT && args->primID < ctx->bestCell)))
+    return;
+  ctx->bestT = root->t;
+  ctx->bestCell = args->primID;
+  ctx->found = true;
+  auto* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
+  rh->ray.tfar = roundUpToFloat(root->t);
+  rh->hit.Ng_x = 0;
+  rh->hit.Ng_y = 0;
+  rh->hit.Ng_z = 1;
+  rh->hit.u = 0;
+  rh->hit.v = 0;
+  rh->hit.primID = args->primID;
+  rh->hit.geomID = args->geomID;
+  rh->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+}
+
+void patchOccluded(const RTCOccludedFunctionNArguments* args) {
+  if (args->N != 1 || !args->valid[0]) return;
+  auto* ctx = reinterpret_cast<PatchRayContext*>(args->context);
+  if (ctx->found) return;
+  if (cellRoot(*ctx, args->primID)) {
+    ctx->found = true;
+    reinterpret_cast<RTCRay*>(args->ray)->tfar = -std::numeric_limits<float>::infinity();
+  }
+}
+
+}  // namespace
+
+double meanCurvature(const Vec3& g, const Mat3& h) {
+  const double g2 = g.squaredNorm();
+  if (!(g2 > 0)) return std::numeric_limits<double>::quiet_NaN();
+  return (g2 * h.trace() - g.dot(h * g)) / (2.0 * g2 * std::sqrt(g2));
+}
+
+PatchScene::PatchScene(const Model& model) : model_(model), patches_(model.cells.size()) {
+  tbb::parallel_for(std::size_t(0), patches_.size(), [&](std::size_t c) { patches_[c] = model.patch(c); });
+  bounds_.lo = Vec3::Constant(std::numeric_limits<double>::infinity());
+  bounds_.hi = -bounds_.lo;
+  for (std::size_t c = 0; c < model.cells.size(); ++c) {
+    const Vec3 cell = model.cellOrigin(c);
+    bounds_.lo = bounds_.lo.cwiseMin(model.geometry.indexToWorld(cell));
+    bounds_.hi = bounds_.hi.cwiseMax(model.geometry.indexToWorld(cell + Vec3::Ones()));
+  }
+  if (model.cells.empty()) bounds_.lo = bounds_.hi = model.geometry.origin;
+
+  scene_ = rtcNewScene(device_.get());
+  rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
+  rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);
+  if (!patches_.empty()) {
+    RTCGeometry geom = rtcNewGeometry(device_.get(), RTC_GEOMETRY_TYPE_USER);
+    rtcSetGeometryUserPrimitiveCount(geom, static_cast<unsigned>(patches_.size()));
+    rtcSetGeometryUserData(geom, this);
+    rtcSetGeometryBoundsFunction(geom, patchBounds, nullptr);
+    rtcSetGeometryIntersectFunction(geom, patchIntersect);
+    rtcSetGeometryOccludedFunction(geom, patchOccluded);
+    rtcSetGeometryMask(geom, 0xFFFFFFFFu);
+    rtcCommitGeometry(geom);
+    rtcAttachGeometry(scene_, geom);
+    rtcReleaseGeometry(geom);
+  }
+  rtcCommitScene(scene_);
+  device_.check("building the patch scene");
+}
+
+PatchScene::~PatchScene() {
+  if (scene_) rtcReleaseScene(scene_);
+}
+
+Vec3 PatchScene::worldToLocal(const Vec3& world, std::uint32_t cell) const {
+  return model_.geometry.worldToIndex(world) - model_.cellOrigin(cell);
+}
+
+SurfaceHit PatchScene::surfaceAt(const Ray& ray, double t, std::uint32_t cell) const {
+  SurfaceHit hit;
+  hit.t = t;
+  hit.position = ray.origin + t * ray.direction;
+  hit.id = cell;
+  hit.hasCellIndex = true;
+  hit.cellIndex = model_.cells[cell].index;
+  const Vec3 local =
+      worldToLocal(ray.origin, cell) + t * ray.direction.cwiseQuotient(model_.geometry.spacing);
+  const PatchDerivatives d = patches_[cell].derivatives(local);
+  // local = (world - origin) / spacing - cell: d/dworld = diag(1 / spacing) d/dlocal.
+  const Vec3 inv = model_.geometry.spacing.cwiseInverse();
+  const Vec3 g = d.gradient.cwiseProduct(inv);
+  const Mat3 h = inv.asDiagonal() * d.hessian * inv.asDiagonal();
+  const double gn = g.norm();
+  hit.normal = gn > 0 ? Vec3(g / gn) : Vec3(-ray.direction);
+  hit.meanCurvature = meanCurvature(g, h);
+  return hit;
+}
+
+bool PatchScene::intersect(const Ray& ray, double tNear, double tFar, SurfaceHit& hit) const {
+  PatchRayContext ctx;
+  rtcInitIntersectContext(&ctx.embree);
+  ctx.scene = this;
+  ctx.ray = ray;
+  ctx.tNear = tNear;
+  ctx.tFar = tFar;
+  ctx.bestT = tFar;
+  RTCRayHit rh;
+  setEmbreeRay(rh.ray, ray, tNear, tFar);
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+  rtcIntersect1(scene_, &ctx.embree, &rh);
+  if (!ctx.found) return false;
+  hit = surfaceAt(ray, ctx.bestT, ctx.bestCell);
+  return true;
+}
+
+bool PatchScene::occluded(const Ray& ray, double tNear, double tFar) const {
+  PatchRayContext ctx;
+  rtcInitIntersectContext(&ctx.embree);
+  ctx.scene = this;
+  ctx.ray = ray;
+  ctx.tNear = tNear;
+  ctx.tFar = tFar;
+  ctx.bestT = tFar;
+  RTCRay r;
+  setEmbreeRay(r, ray, tNear, tFar);
+  rtcOccluded1(scene_, &ctx.embree, &r);
+  return ctx.found;
+}
+
+}  // namespace cip::raycast

@@ -1,0 +1,52 @@
+/// @file patch_scene.h
+/// @brief A corner-patch model as an Embree user geometry: one primitive per non-empty cell, exact ray-patch
+/// intersection in double precision (cip/ray_patch.h), normals and curvature from the patch's exact
+/// derivatives.
+#pragma once
+#include <vector>
+
+#include "cip/corner_patch.h"
+#include "cip/model.h"
+#include "scene.h"
+
+namespace cip::raycast {
+
+class PatchScene : public RenderScene {
+ public:
+  /// Builds the scene (patches in parallel, then the Embree BVH over the cell boxes). `model` must outlive
+  /// the scene.
+  explicit PatchScene(const Model& model);
+  ~PatchScene() override;
+  PatchScene(const PatchScene&) = delete;
+  PatchScene& operator=(const PatchScene&) = delete;
+
+  bool intersect(const Ray& ray, double tNear, double tFar, SurfaceHit& hit) const override;
+  bool occluded(const Ray& ray, double tNear, double tFar) const override;
+  /// World box of the non-empty cells.
+  Box bounds() const override { return bounds_; }
+  std::size_t primitives() const override { return patches_.size(); }
+
+  /// Surface data at the hit of cell `cell` at ray parameter t: position, normal (world gradient direction)
+  /// and mean curvature in world units from the exact gradient and Hessian.
+  SurfaceHit surfaceAt(const Ray& ray, double t, std::uint32_t cell) const;
+
+  // Used by the Embree callbacks.
+  const Model& model() const { return model_; }
+  const CornerPatch& patch(std::uint32_t cell) const { return patches_[cell]; }
+  /// Cell-local coordinates of a world point in cell `cell`.
+  Vec3 worldToLocal(const Vec3& world, std::uint32_t cell) const;
+
+ private:
+  const Model& model_;
+  std::vector<CornerPatch> patches_;
+  Box bounds_;
+  EmbreeDevice device_;
+  RTCScene scene_ = nullptr;
+};
+
+/// Mean curvature (1 / world units) of the level set of f at a point from f's world gradient g and Hessian H:
+/// div(g / |g|) / 2 = (|g|^2 tr H - g^T H g) / (2 |g|^3). Positive where the surface bends away from the
+/// gradient direction (e.g. +1/r on a sphere whose field grows outwards). NaN when g = 0.
+double meanCurvature(const Vec3& gradient, const Mat3& hessian);
+
+}  // namespace cip::raycast

@@ -1,0 +1,164 @@
+#include "renderer.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <mutex>
+
+#include "cip/error.h"
+
+namespace cip::raycast {
+
+namespace {
+
+std::uint64_t hash3(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
+  std::uint64_t x = a * 0x9e3779b97f4a7c15ull ^ (b + 0x632be59bd9b4e019ull) * 0xc2b2ae3d27d4eb4full ^
+                    (c + 0x165667b19e3779f9ull) * 0xff51afd7ed558ccdull;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+  return x ^ (x >> 31);
+}
+
+double unitFloat(std::uint64_t h) {
+  return static_cast<double>(h >> 11) * (1.0 / 9007199254740992.0);
+}
+
+}  // namespace
+
+std::pair<double, double> samplePosition(int x, int y, int s, int spp) {
+  if (spp <= 1) return {0.5, 0.5};
+  const int m = static_cast<int>(std::ceil(std::sqrt(static_cast<double>(spp))));
+  const int rows = (spp + m - 1) / m;
+  const std::uint64_t h =
+      hash3(static_cast<std::uint64_t>(x), static_cast<std::uint64_t>(y), static_cast<std::uint64_t>(s));
+  const double jx = unitFloat(h), jy = unitFloat(hash3(h, 1, 2));
+  return {(s % m + jx) / m, (s / m + jy) / rows};
+}
+
+RenderImage render(const RenderScene& scene, const Camera& camera, const RenderOptions& options,
+                   RenderStats* stats) {
+  if (options.samplesPerPixel < 1) throw Error("samples per pixel must be at least 1");
+  const auto start = std::chrono::steady_clock::now();
+  RenderImage img;
+  img.width = camera.width();
+  img.height = camera.height();
+  const std::size_t n = img.pixels();
+  img.rgba.assign(4 * n, 0.0f);
+  img.depth.assign(n, std::numeric_limits<float>::infinity());
+  img.normal.assign(3 * n, 0.0f);
+  img.id.assign(n, kNoHitId);
+  img.curvature.assign(n, std::numeric_limits<float>::quiet_NaN());
+  std::vector<float> light(n, 0.0f);  // curvature mode: mean lighting factor over hit samples
+
+  const ShadingFrame frame = makeShadingFrame(camera, scene.bounds());
+  const int spp = options.samplesPerPixel;
+  const int tile = std::max(1, options.tileSize);
+  const int tilesX = (img.width + tile - 1) / tile, tilesY = (img.height + tile - 1) / tile;
+  const int tiles = tilesX * tilesY;
+  const double inf = std::numeric_limits<double>::infinity();
+  std::atomic<std::int64_t> primary{0}, shadow{0}, done{0};
+  std::mutex progressMutex;
+
+  auto renderTile = [&](int t) {
+    const int x0 = (t % tilesX) * tile, y0 = (t / tilesX) * tile;
+    const int x1 = std::min(img.width, x0 + tile), y1 = std::min(img.height, y0 + tile);
+    std::int64_t rays = 0, shadowRays = 0;
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        const std::size_t p = static_cast<std::size_t>(y) * img.width + x;
+        Vec3 sum = Vec3::Zero();
+        double curvatureSum = 0, lightSum = 0;
+        int hits = 0, curvatureHits = 0;
+        SurfaceHit hit;
+        for (int s = 0; s < spp; ++s) {
+          const auto [u, v] = samplePosition(x, y, s, spp);
+          const Ray ray = camera.ray(x + u, y + v);
+          ++rays;
+          if (!scene.intersect(ray, 0.0, inf, hit)) continue;
+          ++hits;
+          const ShadedSample shaded = shade(hit, ray, scene, frame, options.shading, shadowRays);
+          sum += shaded.rgb;
+          lightSum += shaded.light;
+          if (std::isfinite(hit.meanCurvature)) {
+            curvatureSum += hit.meanCurvature;
+            ++curvatureHits;
+          }
+        }
+        for (int c = 0; c < 3; ++c) img.rgba[4 * p + c] = static_cast<float>(sum[c] / spp);
+        img.rgba[4 * p + 3] = static_cast<float>(static_cast<double>(hits) / spp);
+        if (hits > 0) light[p] = static_cast<float>(lightSum / hits);
+        if (curvatureHits > 0) img.curvature[p] = static_cast<float>(curvatureSum / curvatureHits);
+        // Auxiliary channels from the ray through the pixel centre.
+        bool centreHit;
+        if (spp == 1) {
+          centreHit = hits > 0;
+        } else {
+          ++rays;
+          centreHit = scene.intersect(camera.ray(x + 0.5, y + 0.5), 0.0, inf, hit);
+        }
+        if (centreHit) {
+          img.depth[p] = static_cast<float>(hit.t);
+          for (int c = 0; c < 3; ++c) img.normal[3 * p + c] = static_cast<float>(hit.normal[c]);
+          img.id[p] = hit.id;
+        }
+      }
+    primary += rays;
+    shadow += shadowRays;
+    const std::int64_t d = ++done;
+    if (options.progress) {
+      std::lock_guard<std::mutex> lock(progressMutex);
+      options.progress(static_cast<double>(d) / tiles);
+    }
+  };
+
+  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
+  arena.execute([&] {
+    tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const tbb::blocked_range<int>& r) {
+      for (int t = r.begin(); t != r.end(); ++t) renderTile(t);
+    });
+  });
+
+  double lo = 0, hi = 0;
+  if (options.shading.mode == ShadingMode::Curvature) {
+    if (options.shading.curvatureRange) {
+      std::tie(lo, hi) = *options.shading.curvatureRange;
+    } else {
+      std::vector<float> mags;
+      for (std::size_t p = 0; p < n; ++p)
+        if (std::isfinite(img.curvature[p])) mags.push_back(std::abs(img.curvature[p]));
+      double k = 1;
+      if (!mags.empty()) {
+        const std::size_t at = std::min(mags.size() - 1, mags.size() * 9 / 10);
+        std::nth_element(mags.begin(), mags.begin() + static_cast<std::ptrdiff_t>(at), mags.end());
+        k = mags[at] > 0 ? mags[at] : 1.0;
+      }
+      lo = -k;
+      hi = k;
+    }
+    for (std::size_t p = 0; p < n; ++p) {
+      const float a = img.rgba[4 * p + 3];
+      if (a <= 0) continue;
+      const Vec3 c = curvatureColour(img.curvature[p], lo, hi) * (0.35 + 0.65 * light[p]) * a;
+      for (int k = 0; k < 3; ++k) img.rgba[4 * p + k] = static_cast<float>(c[k]);
+    }
+  }
+
+  if (stats) {
+    stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    stats->threads = arena.max_concurrency();
+    stats->primaryRays = primary;
+    stats->shadowRays = shadow;
+    stats->hitPixels = 0;
+    for (std::size_t p = 0; p < n; ++p) stats->hitPixels += img.rgba[4 * p + 3] > 0;
+    stats->curvatureLo = lo;
+    stats->curvatureHi = hi;
+  }
+  return img;
+}
+
+}  // namespace cip::raycast

@@ -1,0 +1,514 @@
+// The renderer against analytic surfaces: a sampled sphere (coverage, depth and normals against the true
+// sphere, tolerances shrinking with resolution, no cracks even for rays along shared cell faces), a sampled
+// plane (reproduced exactly: depth at rounding level), thread-count determinism, EXR channels read back with
+// OpenImageIO, meshes, and the command's error path.
+#include <OpenImageIO/imageio.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <vector>
+
+#include "app.h"
+#include "camera.h"
+#include "cip/analytic_field.h"
+#include "cip/error.h"
+#include "cip/model_builder.h"
+#include "cip/model_file.h"
+#include "cip/ply.h"
+#include "cip/ray_patch.h"
+#include "image_output.h"
+#include "mesh_scene.h"
+#include "patch_scene.h"
+#include "renderer.h"
+
+using namespace cip;
+using namespace cip::raycast;
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr double kRadius = 0.75;  // analytic sphere: |x| - 0.75
+constexpr double kPi = 3.14159265358979323846;
+
+Model sampledModel(const std::string& field, int n) {
+  auto f = makeAnalyticField(field);
+  DenseGrid grid = sampleField(*f, n, field);
+  BuildOptions options;
+  options.normals = NormalMode::Exact;
+  options.exactField = f.get();
+  options.isovalue = f->defaultIsovalue();
+  return buildModel(grid, options);
+}
+
+/// First intersection of a ray with the true sphere, or NaN.
+double sphereHit(const Ray& r) {
+  const double b = r.origin.dot(r.direction), c = r.origin.squaredNorm() - kRadius * kRadius;
+  const double disc = b * b - c;
+  return disc < 0 ? std::nan("") : -b - std::sqrt(disc);
+}
+
+/// Distance of the ray's line from the sphere's centre.
+double missDistance(const Ray& r) {
+  return (r.origin - r.origin.dot(r.direction) * r.direction).norm();
+}
+
+fs::path scratchDir() {
+  fs::path d = fs::path(CIP_BINARY_DIR) / "raycast_test_scratch";
+  fs::create_directories(d);
+  return d;
+}
+
+struct SphereErrors {
+  int shouldHit = 0, missedInside = 0, hitOutside = 0;
+  double maxDepth = 0, meanNormalDeg = 0, p99NormalDeg = 0, meanDepth = 0;
+};
+
+/// Renders the sphere model and compares every pixel-centre ray with the true sphere. `margin`: pixels whose
+/// ray passes within `margin` of the silhouette are not judged for coverage.
+SphereErrors compareWithSphere(const PatchScene& scene, const Camera& camera, double margin) {
+  RenderOptions options;
+  options.threads = 2;
+  RenderImage img = render(scene, camera, options);
+  SphereErrors e;
+  std::vector<double> angles;
+  double depthSum = 0;
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      const std::size_t p = static_cast<std::size_t>(y) * img.width + x;
+      const Ray ray = camera.ray(x + 0.5, y + 0.5);
+      const double miss = missDistance(ray);
+      const bool hit = img.id[p] != kNoHitId;
+      if (miss < kRadius - margin) {
+        ++e.shouldHit;
+        if (!hit) ++e.missedInside;
+      }
+      if (miss > kRadius + margin && hit) ++e.hitOutside;
+      if (!hit || miss > kRadius - margin) continue;
+      const double truth = sphereHit(ray);
+      const double err = std::abs(img.depth[p] - truth);
+      e.maxDepth = std::max(e.maxDepth, err);
+      depthSum += err;
+      const Vec3 n(img.normal[3 * p], img.normal[3 * p + 1], img.normal[3 * p + 2]);
+      const Vec3 point = ray.origin + static_cast<double>(img.depth[p]) * ray.direction;
+      angles.push_back(std::acos(std::clamp(n.dot(point.normalized()), -1.0, 1.0)) * 180 / kPi);
+    }
+  if (!angles.empty()) {
+    double sum = 0;
+    for (double a : angles) sum += a;
+    e.meanNormalDeg = sum / static_cast<double>(angles.size());
+    e.meanDepth = depthSum / static_cast<double>(angles.size());
+    std::sort(angles.begin(), angles.end());
+    e.p99NormalDeg = angles[angles.size() * 99 / 100];
+  }
+  return e;
+}
+
+/// Orthographic view down -z with pixel size a quarter of the grid spacing (2/n). Every fourth column of
+/// pixel-centre rays lies exactly in a grid plane x = const, so those rays run along faces shared by two
+/// cells. With `onEdges` every fourth row lies in a plane y = const too, so some rays run exactly along cell
+/// edges (through grid points).
+Camera gridAlignedCamera(int n, bool onEdges) {
+  const double pixel = 2.0 / (4.0 * n);
+  const int size = 4 * n;
+  const Vec3 look(0.5 * pixel, (onEdges ? -0.5 : -0.25) * pixel, 0);
+  const double fov = 2 * std::atan(1.0 / 5.0) * 180 / kPi;
+  return Camera(look + Vec3(0, 0, 5), look, Vec3::UnitY(), fov, true, size, size);
+}
+
+/// Independent reference for what the renderer must find: the first zero of the model's patches along the
+/// ray, by visiting every cell (no BVH), sampling the patch densely over the ray's stretch in the cell and
+/// bisecting the first sign change. Returns (t, cell) or nothing.
+struct Oracle {
+  const Model& model;
+  std::vector<CornerPatch> patches;
+  explicit Oracle(const Model& m) : model(m) {
+    for (std::size_t c = 0; c < m.cells.size(); ++c) patches.push_back(m.patch(c));
+  }
+  Vec3 localOrigin(const Ray& r, std::size_t c) const {
+    return model.geometry.worldToIndex(r.origin) - model.cellOrigin(c);
+  }
+  Vec3 localDirection(const Ray& r) const { return r.direction.cwiseQuotient(model.geometry.spacing); }
+
+  std::optional<std::pair<double, std::uint32_t>> firstHit(const Ray& r, int samples = 300) const {
+    std::optional<std::pair<double, std::uint32_t>> best;
+    const Vec3 d = localDirection(r);
+    for (std::size_t c = 0; c < patches.size(); ++c) {
+      const Vec3 o = localOrigin(r, c);
+      double t0, t1;
+      if (!clipRayToCell(o, d, 0, std::numeric_limits<double>::infinity(), t0, t1)) continue;
+      if (best && t0 > best->first) continue;
+      auto f = [&](double t) { return patches[c].value(o + t * d); };
+      // Sign changes between non-zero samples only: zeros without a sign change are not surface.
+      double prevT = t0, prevV = f(t0);
+      std::optional<double> root;
+      for (int i = 1; i <= samples && !root; ++i) {
+        const double t = t0 + (t1 - t0) * i / samples, v = f(t);
+        if (v == 0) continue;
+        if (prevV != 0 && (v < 0) != (prevV < 0)) {
+          double lo = prevT, hi = t;
+          for (int k = 0; k < 80; ++k) {
+            const double m = 0.5 * (lo + hi), fm = f(m);
+            if (fm == 0) {
+              lo = hi = m;
+              break;
+            }
+            ((fm < 0) == (prevV < 0) ? lo : hi) = m;
+          }
+          root = 0.5 * (lo + hi);
+        }
+        prevT = t;
+        prevV = v;
+      }
+      if (root && (!best || *root < best->first)) best = std::make_pair(*root, static_cast<std::uint32_t>(c));
+    }
+    return best;
+  }
+
+  /// Whether t is a zero of cell c's patch along the ray: |value| tiny against the values a little way off.
+  bool isZero(const Ray& r, double t, std::uint32_t c) const {
+    const Vec3 o = localOrigin(r, c), d = localDirection(r);
+    const double step = 1e-4 / d.norm();  // 1e-4 cell units
+    const double v = std::abs(patches[c].value(o + t * d));
+    const double around = std::max(std::abs(patches[c].value(o + (t - step) * d)),
+                                   std::abs(patches[c].value(o + (t + step) * d)));
+    return v <= 1e-6 * around;
+  }
+};
+
+struct OracleComparison {
+  int rays = 0, agree = 0, earlierZero = 0, cracks = 0, extra = 0, wrong = 0;
+  double maxDiff = 0;
+};
+
+/// Casts every pixel-centre ray through the scene and the oracle.
+OracleComparison compareWithOracle(const PatchScene& scene, const Oracle& oracle, const Camera& camera) {
+  OracleComparison out;
+  for (int y = 0; y < camera.height(); ++y)
+    for (int x = 0; x < camera.width(); ++x) {
+      const Ray ray = camera.ray(x + 0.5, y + 0.5);
+      ++out.rays;
+      SurfaceHit hit;
+      const bool found = scene.intersect(ray, 0, std::numeric_limits<double>::infinity(), hit);
+      const auto ref = oracle.firstHit(ray);
+      if (ref && !found) {
+        ++out.cracks;
+        continue;
+      }
+      if (!found) continue;
+      if (!oracle.isZero(ray, hit.t, hit.id)) {
+        ++out.wrong;
+        continue;
+      }
+      if (!ref) {
+        ++out.extra;  // a touch or a root pair closer than the oracle's sampling
+        continue;
+      }
+      const double diff = std::abs(hit.t - ref->first);
+      if (diff <= 1e-9) {
+        ++out.agree;
+        out.maxDiff = std::max(out.maxDiff, diff);
+      } else if (hit.t < ref->first) {
+        ++out.earlierZero;  // a verified zero before the oracle's: a pair its sampling stepped over
+      } else {
+        ++out.wrong;  // the renderer skipped the first zero
+      }
+    }
+  return out;
+}
+
+}  // namespace
+
+// The renderer must return exactly the first zero of the patches along each ray (Embree traversal, cell
+// clipping and the root finder together), including rays exactly along shared faces and cell edges.
+TEST(Raycast, HitsAreTheFirstZerosOfThePatches) {
+  for (const char* field : {"sphere", "torus", "plane"}) {
+    const Model model = sampledModel(field, 16);
+    const PatchScene scene(model);
+    const Oracle oracle(model);
+    for (int view : {0, 1, 2}) {
+      const Camera camera =
+          view == 0 ? makeCamera(CameraSettings{}, scene.bounds(), 48, 36) : gridAlignedCamera(8, view == 2);
+      const OracleComparison c = compareWithOracle(scene, oracle, camera);
+      const char* name = view == 0 ? "default view" : view == 1 ? "rays along faces" : "rays along edges";
+      std::printf(
+          "%s, %s: %d rays, %d agree (max diff %.2g), %d earlier zeros, %d extra, %d cracks, %d wrong\n",
+          field, name, c.rays, c.agree, c.maxDiff, c.earlierZero, c.extra, c.cracks, c.wrong);
+      EXPECT_EQ(c.cracks, 0) << field << ", " << name;
+      EXPECT_EQ(c.wrong, 0) << field << ", " << name;
+      EXPECT_GT(c.agree, c.rays / 10) << field << ", " << name;
+      // Zeros without a sign change (at grid points and along uncrossed cell edges every patch term has a
+      // vanishing squared bounding plane) are not surface: the renderer skips them, as the oracle does.
+      EXPECT_LE(c.earlierZero + c.extra, c.rays / 100 + 2) << field << ", " << name;
+    }
+  }
+}
+
+TEST(Raycast, SphereCoverageDepthNormalsShrinkWithResolution) {
+  SphereErrors previous;
+  for (int n : {16, 32}) {
+    const Model model = sampledModel("sphere", n);
+    const PatchScene scene(model);
+    const double h = 2.0 / n;  // grid spacing (world)
+    CameraSettings settings;
+    const Camera camera = makeCamera(settings, scene.bounds(), 160, 120);
+    const SphereErrors e = compareWithSphere(scene, camera, 0.5 * h);
+    std::printf(
+        "N=%d: %d judged, missed inside %d, hit outside %d, depth max %.3g mean %.3g (voxels %.3g / %.3g), "
+        "normal mean %.2f deg p99 %.2f deg\n",
+        n, e.shouldHit, e.missedInside, e.hitOutside, e.maxDepth, e.meanDepth, e.maxDepth / h,
+        e.meanDepth / h, e.meanNormalDeg, e.p99NormalDeg);
+    EXPECT_GT(e.shouldHit, 1500);
+    EXPECT_EQ(e.missedInside, 0) << "cracks";
+    EXPECT_EQ(e.hitOutside, 0);
+    // Representation error of the patches (not of the renderer, which HitsAreTheFirstZerosOfThePatches
+    // checks):
+    EXPECT_LT(e.meanDepth, 0.5 * h * h);   // world units; quadratic in the spacing
+    EXPECT_LT(e.maxDepth, 2.5 * h);        // a few cells with wrong-sign wiggles
+    EXPECT_LT(e.meanNormalDeg, 96.0 / n);  // 6 degrees at N = 16, 3 at N = 32
+    EXPECT_LT(e.p99NormalDeg, 480.0 / n);  // 30 and 15 degrees
+    if (n == 32) {
+      EXPECT_LT(e.maxDepth, 0.5 * previous.maxDepth);
+      EXPECT_LT(e.meanDepth, 0.5 * previous.meanDepth);
+      EXPECT_LT(e.meanNormalDeg, 0.75 * previous.meanNormalDeg);
+    }
+    previous = e;
+  }
+}
+
+TEST(Raycast, NoCracksForRaysAlongSharedCellFaces) {
+  for (int n : {16, 32}) {
+    const Model model = sampledModel("sphere", n);
+    const PatchScene scene(model);
+    const double h = 2.0 / n;
+    for (bool onEdges : {false, true}) {
+      const SphereErrors e = compareWithSphere(scene, gridAlignedCamera(n, onEdges), 0.5 * h);
+      EXPECT_GT(e.shouldHit, 100);
+      EXPECT_EQ(e.missedInside, 0) << "N=" << n << (onEdges ? " along edges" : " along faces");
+      EXPECT_EQ(e.hitOutside, 0) << "N=" << n << (onEdges ? " along edges" : " along faces");
+      EXPECT_LT(e.maxDepth, 2.5 * h);
+    }
+  }
+}
+
+// A linear field: with exact normals every corner plane is the field's plane, so the patch is that plane
+// times a positive sum of squares once the side and central coefficients are zero, as eq. 5 gives them in
+// exact arithmetic. The builder's fitted side coefficients are cleared here: they are 0/0 for a linear field
+// and come out as rounding noise, occasionally huge (the renderer reproduces those patches exactly too, see
+// HitsAreTheFirstZerosOfThePatches).
+TEST(Raycast, PlaneIsExact) {
+  const Vec3 normal(0.3, -0.5, 0.81);  // 0.3 x - 0.5 y + 0.81 z - 0.05 = 0
+  const double offset = 0.05;
+  Model model = sampledModel("plane", 16);
+  for (auto& cell : model.cells) {
+    cell.faceCoefficient.fill(0.0);
+    cell.central = 0;
+  }
+  const PatchScene scene(model);
+  CameraSettings settings;
+  const Camera camera = makeCamera(settings, scene.bounds(), 96, 72);
+  RenderOptions options;
+  const RenderImage img = render(scene, camera, options);
+  int hits = 0;
+  double maxErr = 0, maxImageErr = 0, maxAngle = 0;
+  for (int y = 0; y < camera.height(); ++y)
+    for (int x = 0; x < camera.width(); ++x) {
+      const Ray ray = camera.ray(x + 0.5, y + 0.5);
+      const double truth = (offset - normal.dot(ray.origin)) / normal.dot(ray.direction);
+      const Vec3 p = ray.origin + truth * ray.direction;
+      const bool inside = (p.array().abs() < 1 - 1e-6).all();
+      SurfaceHit hit;
+      const bool found = scene.intersect(ray, 0, std::numeric_limits<double>::infinity(), hit);
+      if (inside) {
+        EXPECT_TRUE(found) << x << "," << y;
+      }
+      if (!found || !inside) continue;
+      ++hits;
+      maxErr = std::max(maxErr, std::abs(hit.t - truth));
+      maxAngle = std::max(maxAngle, hit.normal.cross(normal.normalized()).norm());
+      const std::size_t px = static_cast<std::size_t>(y) * camera.width() + x;
+      maxImageErr = std::max(maxImageErr, std::abs(img.depth[px] - truth) / truth);
+    }
+  std::printf("plane: %d hits, max depth error %.3g, max normal sin %.3g, image Z relative error %.3g\n",
+              hits, maxErr, maxAngle, maxImageErr);
+  EXPECT_GT(hits, 1000);
+  EXPECT_LT(maxErr, 1e-13 * 8);    // rounding level at distances of ~6 world units
+  EXPECT_LT(maxAngle, 1e-13);      // exact gradient
+  EXPECT_LT(maxImageErr, 1.2e-7);  // Z is stored as float
+}
+
+TEST(Raycast, ImageIsIdenticalForAnyThreadCount) {
+  const Model model = sampledModel("torus", 24);
+  const PatchScene scene(model);
+  const Camera camera = makeCamera(CameraSettings{}, scene.bounds(), 64, 48);
+  RenderOptions options;
+  options.samplesPerPixel = 4;
+  options.shading.shadows = true;
+  for (ShadingMode mode : {ShadingMode::Phong, ShadingMode::Curvature}) {
+    options.shading.mode = mode;
+    options.threads = 1;
+    RenderImage a = render(scene, camera, options);
+    options.threads = 2;
+    options.tileSize = 7;  // different tiling too
+    RenderImage b = render(scene, camera, options);
+    options.tileSize = 16;
+    ASSERT_EQ(a.rgba.size(), b.rgba.size());
+    EXPECT_EQ(0, std::memcmp(a.rgba.data(), b.rgba.data(), a.rgba.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(a.depth.data(), b.depth.data(), a.depth.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(a.normal.data(), b.normal.data(), a.normal.size() * sizeof(float)));
+    EXPECT_EQ(a.id, b.id);
+  }
+}
+
+TEST(Raycast, SamplePositionsAreStratified) {
+  for (int spp : {1, 4, 5, 16}) {
+    const int m = static_cast<int>(std::ceil(std::sqrt(spp)));
+    const int rows = (spp + m - 1) / m;
+    for (int s = 0; s < spp; ++s) {
+      auto [u, v] = samplePosition(3, 7, s, spp);
+      EXPECT_EQ(samplePosition(3, 7, s, spp), std::make_pair(u, v));  // a function of its arguments only
+      if (spp == 1) {
+        EXPECT_EQ(u, 0.5);
+        EXPECT_EQ(v, 0.5);
+        continue;
+      }
+      EXPECT_EQ(static_cast<int>(u * m), s % m);
+      EXPECT_EQ(static_cast<int>(v * rows), s / m);
+    }
+  }
+}
+
+TEST(Raycast, ExrChannelsReadBack) {
+  const Model model = sampledModel("sphere", 16);
+  const PatchScene scene(model);
+  const Camera camera = makeCamera(CameraSettings{}, scene.bounds(), 40, 30);
+  RenderOptions options;
+  const RenderImage img = render(scene, camera, options);
+  const fs::path path = scratchDir() / "channels.exr";
+  const fs::path png = scratchDir() / "channels.png";
+  writeExr(img, path.string());
+  writePng(img, png.string());
+  for (const auto& entry : fs::directory_iterator(scratchDir()))  // no temporaries left behind
+    EXPECT_EQ(entry.path().filename().string().find(".tmp"), std::string::npos) << entry.path();
+
+  auto in = OIIO::ImageInput::open(path.string());
+  ASSERT_TRUE(in) << OIIO::geterror();
+  const OIIO::ImageSpec& spec = in->spec();
+  EXPECT_EQ(spec.width, 40);
+  EXPECT_EQ(spec.height, 30);
+  ASSERT_EQ(spec.nchannels, 9);
+  auto channel = [&](const std::string& name) {
+    for (int c = 0; c < spec.nchannels; ++c)
+      if (spec.channelnames[c] == name) return c;
+    return -1;
+  };
+  const int r = channel("R"), a = channel("A"), z = channel("Z"), nx = channel("N.x"), nz = channel("N.z"),
+            id = channel("id");
+  ASSERT_TRUE(r >= 0 && a >= 0 && z >= 0 && nx >= 0 && nz >= 0 && id >= 0);
+  EXPECT_EQ(spec.channelformat(id), OIIO::TypeDesc::UINT32);
+  EXPECT_EQ(spec.channelformat(z), OIIO::TypeDesc::FLOAT);
+  std::vector<float> floats(img.pixels());
+  std::vector<std::uint32_t> ids(img.pixels());
+  auto readChannel = [&](int c, OIIO::TypeDesc type, void* out) {
+    ASSERT_TRUE(in->read_image(0, 0, c, c + 1, type, out)) << in->geterror();
+  };
+  readChannel(id, OIIO::TypeDesc::UINT32, ids.data());
+  EXPECT_EQ(ids, img.id);
+  readChannel(z, OIIO::TypeDesc::FLOAT, floats.data());
+  for (std::size_t p = 0; p < img.pixels(); ++p) {
+    if (std::isinf(img.depth[p])) {
+      EXPECT_TRUE(std::isinf(floats[p]));
+    } else {
+      EXPECT_EQ(floats[p], img.depth[p]);
+    }
+  }
+  for (int c : {r, a, nx, nz}) {
+    readChannel(c, OIIO::TypeDesc::FLOAT, floats.data());
+    const int k = c == r ? 0 : c == a ? 3 : -1;
+    for (std::size_t p = 0; p < img.pixels(); ++p) {
+      const float expect = k >= 0 ? img.rgba[4 * p + k] : img.normal[3 * p + (c == nx ? 0 : 2)];
+      EXPECT_EQ(floats[p], expect);
+    }
+  }
+  in->close();
+
+  auto pin = OIIO::ImageInput::open(png.string());
+  ASSERT_TRUE(pin);
+  EXPECT_EQ(pin->spec().nchannels, 3);
+  EXPECT_EQ(pin->spec().format, OIIO::TypeDesc::UINT8);
+}
+
+TEST(Raycast, MeshSceneRendersTriangles) {
+  // An octahedron |x| + |y| + |z| = 0.5 with outward counter-clockwise faces.
+  TriangleMesh mesh;
+  mesh.positions = {Vec3(0.5, 0, 0),  Vec3(-0.5, 0, 0), Vec3(0, 0.5, 0),
+                    Vec3(0, -0.5, 0), Vec3(0, 0, 0.5),  Vec3(0, 0, -0.5)};
+  for (int sx : {0, 1})
+    for (int sy : {2, 3})
+      for (int sz : {4, 5}) {
+        std::array<std::uint32_t, 3> t{std::uint32_t(sx), std::uint32_t(sy), std::uint32_t(sz)};
+        const Vec3 n =
+            (mesh.positions[t[1]] - mesh.positions[t[0]]).cross(mesh.positions[t[2]] - mesh.positions[t[0]]);
+        if (n.dot(mesh.positions[t[0]] + mesh.positions[t[1]] + mesh.positions[t[2]]) < 0)
+          std::swap(t[1], t[2]);
+        mesh.triangles.push_back(t);
+      }
+  const fs::path ply = scratchDir() / "octahedron.ply";
+  writePly(mesh, ply.string());
+  const TriangleMesh read = readPly(ply.string());
+  const MeshScene scene(read);
+  EXPECT_EQ(scene.primitives(), 8u);
+  const Camera camera = makeCamera(CameraSettings{}, scene.bounds(), 48, 48);
+  const RenderImage img = render(scene, camera, RenderOptions{});
+  int hits = 0;
+  for (std::size_t p = 0; p < img.pixels(); ++p) {
+    if (img.id[p] == kNoHitId) continue;
+    ++hits;
+    EXPECT_LT(img.id[p], 8u);
+    const Vec3 n(img.normal[3 * p], img.normal[3 * p + 1], img.normal[3 * p + 2]);
+    EXPECT_NEAR(n.cwiseAbs().sum(), std::sqrt(3.0), 1e-5);  // facet normals (+-1,+-1,+-1)/sqrt 3
+    const Ray ray = camera.ray(static_cast<double>(p % 48) + 0.5, static_cast<double>(p / 48) + 0.5);
+    EXPECT_LT(n.dot(ray.direction), 0);  // outward faces towards the camera
+    const Vec3 x = ray.origin + static_cast<double>(img.depth[p]) * ray.direction;
+    EXPECT_NEAR(x.cwiseAbs().sum(), 0.5, 1e-5);
+  }
+  EXPECT_GT(hits, 200);
+}
+
+TEST(Raycast, BadModelFileIsAnErrorAndWritesNothing) {
+  const fs::path dir = scratchDir();
+  const fs::path bad = dir / "garbage.cip", out = dir / "never.exr", png = dir / "never.png";
+  {
+    std::ofstream f(bad, std::ios::binary);
+    f << "this is not a model file";
+  }
+  fs::remove(out);
+  fs::remove(png);
+  AppOptions opt;
+  opt.model = bad.string();
+  opt.output = out.string();
+  opt.png = png.string();
+  opt.quiet = true;
+  EXPECT_THROW(runApp(opt), cip::Error);
+  opt.model = (dir / "does-not-exist.cip").string();
+  EXPECT_THROW(runApp(opt), cip::Error);
+  EXPECT_FALSE(fs::exists(out));
+  EXPECT_FALSE(fs::exists(png));
+
+  // A good model through the whole command: EXR, PNG and stats written.
+  const fs::path good = dir / "sphere8.cip", stats = dir / "stats.json";
+  writeModel(sampledModel("sphere", 8), good.string());
+  opt.model = good.string();
+  opt.size = "32x24";
+  opt.statsJson = stats.string();
+  EXPECT_EQ(runApp(opt), 0);
+  EXPECT_TRUE(fs::exists(out));
+  EXPECT_TRUE(fs::exists(png));
+  EXPECT_TRUE(fs::exists(stats));
+  opt.size = "32by24";
+  EXPECT_THROW(runApp(opt), cip::Error);
+  EXPECT_THROW(parseSize("0x10"), cip::Error);
+}
