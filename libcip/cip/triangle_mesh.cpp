@@ -87,6 +87,10 @@ void validateMesh(const TriangleMesh& mesh, const std::string& name) {
     throw Error(name + ": " + std::to_string(mesh.triangleCell.size()) + " triangle cells for " +
                 std::to_string(mesh.triangles.size()) + " triangles");
   }
+  if (!mesh.vertexCell.empty() && mesh.vertexCell.size() != nv) {
+    throw Error(name + ": " + std::to_string(mesh.vertexCell.size()) + " vertex cells for " +
+                std::to_string(nv) + " vertices");
+  }
   for (std::size_t v = 0; v < nv; ++v) {
     if (!mesh.positions[v].allFinite())
       throw Error(name + ": vertex " + std::to_string(v) + " is not finite");

@@ -22,6 +22,8 @@ struct TriangleMesh {
   /// Optional: per triangle, the index into Model::cells of the cell it was made in (empty when not
   /// recorded).
   std::vector<std::uint32_t> triangleCell;
+  /// Optional: per vertex, the index into Model::cells of the cell whose patch placed it (patch meshes only).
+  std::vector<std::uint32_t> vertexCell;
 
   std::size_t vertexCount() const { return positions.size(); }
   std::size_t triangleCount() const { return triangles.size(); }
