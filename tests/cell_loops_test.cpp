@@ -1,6 +1,6 @@
-// Loops of all 256 sign configurations against an independent oracle: on the cube's surface (a sphere) the loops
-// separate the sign regions, so every loop is the set of crossed edges between one positive and one negative
-// region, and #loops = #regions - 1.
+// Loops of all 256 sign configurations against an independent oracle: on the cube's surface (a sphere) the
+// loops separate the sign regions, so every loop is the set of crossed edges between one positive and one
+// negative region, and #loops = #regions - 1.
 #include "cip/cell_loops.h"
 
 #include <gtest/gtest.h>
@@ -15,8 +15,9 @@ using namespace cip;
 
 namespace {
 
-// Connected components of same-sign vertices on the cube surface: along uncrossed edges, and across an ambiguous
-// face's diagonal when the pairing keeps that diagonal's vertices connected (i.e. cuts off the other diagonal).
+// Connected components of same-sign vertices on the cube surface: along uncrossed edges, and across an
+// ambiguous face's diagonal when the pairing keeps that diagonal's vertices connected (i.e. cuts off the
+// other diagonal).
 std::array<int, 8> surfaceRegions(std::uint8_t config, std::uint8_t pairing03) {
   std::array<int, 8> comp;
   for (int v = 0; v < 8; ++v) comp[v] = v;
@@ -112,7 +113,8 @@ TEST(CellLoops, AllConfigurationsAndPairingsMatchTheSurfaceRegions) {
       int start = 0;
       for (int l = 0; l < loops.numLoops; ++l) {
         EXPECT_GE(loops.loopSize[l], 3);
-        actual.insert(std::set<int>(loops.edges.begin() + start, loops.edges.begin() + start + loops.loopSize[l]));
+        actual.insert(
+            std::set<int>(loops.edges.begin() + start, loops.edges.begin() + start + loops.loopSize[l]));
         start += loops.loopSize[l];
       }
       EXPECT_EQ(actual, expected) << "config " << config << " pairing " << pairing;
@@ -131,12 +133,12 @@ TEST(CellLoops, CanonicalMarchingCubesCases) {
     std::multiset<int> s(l.loopSize.begin(), l.loopSize.begin() + l.numLoops);
     return s;
   };
-  EXPECT_EQ(sizes(0x01), (std::multiset<int>{3}));        // case 1: one corner
-  EXPECT_EQ(sizes(0x03), (std::multiset<int>{4}));        // case 2: an edge
-  EXPECT_EQ(sizes(0x07), (std::multiset<int>{5}));        // case 5: three corners of a face
-  EXPECT_EQ(sizes(0x0F), (std::multiset<int>{4}));        // case 8: a whole face
-  EXPECT_EQ(sizes(0x81), (std::multiset<int>{3, 3}));     // case 4: opposite corners (no shared face)
-  EXPECT_EQ(sizes(0x17), (std::multiset<int>{6}));        // case 9/11 family: hexagon
+  EXPECT_EQ(sizes(0x01), (std::multiset<int>{3}));           // case 1: one corner
+  EXPECT_EQ(sizes(0x03), (std::multiset<int>{4}));           // case 2: an edge
+  EXPECT_EQ(sizes(0x07), (std::multiset<int>{5}));           // case 5: three corners of a face
+  EXPECT_EQ(sizes(0x0F), (std::multiset<int>{4}));           // case 8: a whole face
+  EXPECT_EQ(sizes(0x81), (std::multiset<int>{3, 3}));        // case 4: opposite corners (no shared face)
+  EXPECT_EQ(sizes(0x17), (std::multiset<int>{6}));           // case 9/11 family: hexagon
   EXPECT_EQ(sizes(0x69), (std::multiset<int>{3, 3, 3, 3}));  // case 13: four isolated corners
   EXPECT_EQ(sizes(0x09), (std::multiset<int>{3, 3}));        // case 3: diagonal corners of a face, kept apart
   EXPECT_EQ(sizes(0x0C), (std::multiset<int>{4}));           // case 2 again, another edge
@@ -152,8 +154,8 @@ TEST(CellLoops, AmbiguousPairingByShortestSegments) {
 }
 
 TEST(CellLoops, OrientationPositiveSideOnTheLeft) {
-  // For every configuration, consecutive corners form segments on faces; the positive vertex of the first edge
-  // lies to the left of the segment seen from outside the cube.
+  // For every configuration, consecutive corners form segments on faces; the positive vertex of the first
+  // edge lies to the left of the segment seen from outside the cube.
   for (int config = 1; config < 255; ++config) {
     CellLoops loops = buildCellLoops(static_cast<std::uint8_t>(config), 0);
     for (int k = 0; k < loops.numCorners(); ++k) {

@@ -1,5 +1,5 @@
-// Properties of single-cell corner patches over all 256 sign configurations, and the paper's coefficient rules
-// checked on hand-computed cells.
+// Properties of single-cell corner patches over all 256 sign configurations, and the paper's coefficient
+// rules checked on hand-computed cells.
 #include "cip/corner_patch.h"
 
 #include <gtest/gtest.h>
@@ -61,7 +61,8 @@ TEST(CornerPatch, AllConfigurationsVanishAtIsoverticesInterpolateSidesAndFollowC
           EXPECT_NEAR(p.value(s), 0.0, 1e-12 * scale) << "config " << config << " face " << f;
           ++sidesChecked;
         } else {
-          // Ambiguous face: one coefficient, two side points: least squares -> residuals orthogonal to the basis.
+          // Ambiguous face: one coefficient, two side points: least squares -> residuals orthogonal to the
+          // basis.
           ++ambiguousFaces;
           double normal = 0, size = 0;
           for (int k = 0; k < 2; ++k) {
@@ -112,8 +113,8 @@ TEST(CornerPatch, DerivativesMatchFiniteDifferences) {
   }
 }
 
-// Hand-computed cell: vertex 0 positive (configuration 0x01), crossings at the midpoints of the three edges at
-// vertex 0, corner normals along the edges towards vertex 0 (the paper's section 7.1 normals):
+// Hand-computed cell: vertex 0 positive (configuration 0x01), crossings at the midpoints of the three edges
+// at vertex 0, corner normals along the edges towards vertex 0 (the paper's section 7.1 normals):
 //   p_x = (1/2,0,0), n_x = (-1,0,0);  p_y = (0,1/2,0), n_y = (0,-1,0);  p_z = (0,0,1/2), n_z = (0,0,-1).
 // Bounding planes P = {x=0, y=0, z=0}: B = x, y, z.
 namespace {
@@ -128,8 +129,8 @@ CornerPatch handCell() {
 
 TEST(PatchCoefficients, TriangleRuleOnHandComputedFace) {
   CornerPatch p = handCell();
-  // Face z=0 (f=4): u = x, v = y. Corner lines: -(u - 1/2) = 0 -> u = 1/2 and v = 1/2. They meet at (1/2,1/2),
-  // inside the face: triangle (1/2,0), (0,1/2), (1/2,1/2) with centroid (1/3, 1/3).
+  // Face z=0 (f=4): u = x, v = y. Corner lines: -(u - 1/2) = 0 -> u = 1/2 and v = 1/2. They meet at
+  // (1/2,1/2), inside the face: triangle (1/2,0), (0,1/2), (1/2,1/2) with centroid (1/3, 1/3).
   FaceCrossings face = faceCrossingsOf(p, 4, false);
   EXPECT_EQ(face.crossed, 0b0101);  // canonical edges 0 (x-edge at y=0) and 2 (y-edge at x=0)
   SideRule rule;
@@ -140,10 +141,10 @@ TEST(PatchCoefficients, TriangleRuleOnHandComputedFace) {
 }
 
 TEST(PatchCoefficients, TetragonRuleOnHandComputedFace) {
-  // A face crossed on its two u-edges: (1/2, 0) on edge 0 and (1/2, 1) on edge 1, in-face normals (1,-2) and (1,2).
-  // Lines: u - 2v = 1/2 and u + 2(v - 1) = 1/2 meet at u = 3/2 (outside the face): tetragon. Line 0 meets edge 1
-  // (v = 1) at u = 5/2, clamped to (1,1); line 1 meets edge 0 (v = 0) at u = 5/2, clamped to (1,0).
-  // Centroid of (1/2,0), (1,1), (1/2,1), (1,0) = (3/4, 1/2).
+  // A face crossed on its two u-edges: (1/2, 0) on edge 0 and (1/2, 1) on edge 1, in-face normals (1,-2) and
+  // (1,2). Lines: u - 2v = 1/2 and u + 2(v - 1) = 1/2 meet at u = 3/2 (outside the face): tetragon. Line 0
+  // meets edge 1 (v = 1) at u = 5/2, clamped to (1,1); line 1 meets edge 0 (v = 0) at u = 5/2, clamped to
+  // (1,0). Centroid of (1/2,0), (1,1), (1/2,1), (1,0) = (3/4, 1/2).
   FaceCrossings face;
   face.crossed = 0b0011;
   face.point[0] = Vec2(0.5, 0);

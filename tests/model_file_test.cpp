@@ -41,7 +41,9 @@ void reseal(std::vector<std::uint8_t>& bytes) {
 }
 
 // Byte offset of the three counts (vertex, cell, corner) in the header.
-std::size_t countsOffset(const Model& m) { return 8 + 4 + 24 + 24 + 24 + 8 + 4 + 4 + m.source.size(); }
+std::size_t countsOffset(const Model& m) {
+  return 8 + 4 + 24 + 24 + 24 + 8 + 4 + 4 + m.source.size();
+}
 
 }  // namespace
 
@@ -129,9 +131,7 @@ TEST(ModelFile, WriteIsAtomicAndFailureLeavesPreviousFile) {
   std::string dir = (std::filesystem::temp_directory_path() / "cip_atomic_test").string();
   std::filesystem::create_directories(dir);
   std::string path = dir + "/m.cip";
-  {
-    std::ofstream(path) << "previous contents";
-  }
+  { std::ofstream(path) << "previous contents"; }
   EXPECT_THROW(writeModel(sampleModel(), dir + "/missing-dir/m.cip"), Error);
   EXPECT_THROW(readModel(dir + "/does-not-exist.cip"), Error);
   EXPECT_THROW(readModel(path), Error);  // not a model: rejected, file untouched
