@@ -120,8 +120,8 @@ TEST(NrrdHeader, FieldsAndDefaults) {
                 .size());
 
   h = parseNrrdHeader(
-      "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 2 2 2\nspacings: 0.1 0.2 0.3\nencoding: raw\ndatafile: a "
-      "b.raw\n");
+      "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 2 2 2\nspacings: 0.1 0.2 0.3\ncontent: a:=b\n"
+      "encoding: raw\ndatafile: a b.raw\n");
   EXPECT_EQ(h.spacing, Vec3(0.1, 0.2, 0.3));
   EXPECT_EQ(h.dataFile, "a b.raw");
 }

@@ -171,8 +171,9 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
       break;
     }
     if (raw[0] == '#') continue;
-    if (raw.find(":=") != std::string_view::npos) continue;  // key/value pair: not used
     std::size_t colon = raw.find(": ");
+    std::size_t pair = raw.find(":=");
+    if (pair != std::string_view::npos && pair < colon) continue;  // "key:=value" pair: not used
     if (colon == std::string_view::npos) {
       if (!raw.empty() && raw.back() == ':') {
         colon = raw.size() - 1;
