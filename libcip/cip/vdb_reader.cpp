@@ -241,6 +241,8 @@ std::vector<VdbGridInfo> listVdbGrids(const std::string& path) {
     return infos;
   } catch (const openvdb::Exception& e) {
     throw Error(path + ": cannot read VDB file: " + e.what());
+  } catch (const std::exception& e) {
+    throw Error(path + ": cannot read VDB file (corrupt?): " + e.what());
   }
 }
 
@@ -261,6 +263,9 @@ SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
     throw Error(path + ": cannot read VDB file: " + e.what());
   } catch (const std::ios_base::failure&) {
     throw Error(path + ": cannot read VDB file: it is truncated or corrupt");
+  } catch (const std::exception& e) {
+    // Corrupt files can also make OpenVDB fail inside the standard library (bad sizes, allocation failures).
+    throw Error(path + ": cannot read VDB file (corrupt?): " + e.what());
   }
   std::vector<VdbGridInfo> infos;
   for (const auto& g : *grids)
