@@ -203,6 +203,31 @@ TEST(NrrdReader, AttachedRawAndGzip) {
   expectPayload(readNrrd(dir.file("gs.nrrd")));
 }
 
+TEST(NrrdReader, LargeGzipDetachedMultiMemberAndZlib) {
+  test::ScratchDir dir;
+  const std::string raw = test::readAll(sharedData("tooth_103x94x161_uint8.raw"));
+  const std::string head = "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 103 94 161\nencoding: gzip\n";
+  DenseGrid reference = readNrrd(sharedData("tooth.nhdr"));
+  // Detached gzip file larger than the inflater's input and output buffers.
+  test::writeAll(dir.file("t.raw.gz"), test::gzipBytes(raw));
+  test::writeAll(dir.file("t.nhdr"), head + "data file: t.raw.gz\n");
+  EXPECT_EQ(readNrrd(dir.file("t.nhdr")).values, reference.values);
+  // Two concatenated gzip members (as written by parallel gzip tools).
+  const std::size_t half = raw.size() / 2 + 7;
+  test::writeAll(dir.file("m.nrrd"),
+                 head + "\n" + test::gzipBytes(raw.substr(0, half)) + test::gzipBytes(raw.substr(half)));
+  EXPECT_EQ(readNrrd(dir.file("m.nrrd")).values, reference.values);
+  // A zlib stream (no gzip wrapper) is accepted too.
+  std::string z(compressBound(static_cast<uLong>(raw.size())), '\0');
+  uLongf zn = static_cast<uLongf>(z.size());
+  ASSERT_EQ(compress2(reinterpret_cast<Bytef*>(z.data()), &zn, reinterpret_cast<const Bytef*>(raw.data()),
+                      static_cast<uLong>(raw.size()), 6),
+            Z_OK);
+  z.resize(zn);
+  test::writeAll(dir.file("z.nrrd"), head + "\n" + z);
+  EXPECT_EQ(readNrrd(dir.file("z.nrrd")).values, reference.values);
+}
+
 TEST(NrrdReader, DetachedWithSkips) {
   test::ScratchDir dir;
   test::writeAll(dir.file("d.raw"), "line one\nline two\nXYZ" + payload());
