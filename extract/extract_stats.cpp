@@ -12,7 +12,7 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
   j["isovalue"] = s.isovalue;
   j["normals"] = s.normals;
   j["central"] = s.central;
-  j["method"] = toString(m.method);
+  j["method"] = s.method;
   std::array<std::size_t, 5> loops{};
   for (const auto& c : m.cells) loops[std::min<std::size_t>(c.numLoops, 4)]++;
   j["model"] = {{"non_empty_cells", m.cells.size()},

@@ -13,6 +13,7 @@
 #include "cip/model_file.h"
 #include "cip/progress_bar.h"
 #include "cip/marching_cubes.h"
+#include "cip/patch_mesh.h"
 #include "cip/ply.h"
 #include "cip/volume_reader.h"
 #include "extract_stats.h"
@@ -24,7 +25,7 @@ double secondsSince(Clock::time_point t) { return std::chrono::duration<double>(
 
 struct Options {
   std::string input, output, mcMesh, patchMesh, statsJson;
-  std::string normals = "gradient", central = "zero";
+  std::string normals = "gradient", central = "zero", method = "paper";
   std::optional<double> iso;
   int resolution = 64, subdiv = 4, threads = 0;
   bool quiet = false, skipNonFinite = false;
@@ -104,11 +105,13 @@ int run(const Options& opt) {
   } else {
     throw cip::Error("unknown --central rule '" + opt.central + "' (expected zero or interior)");
   }
+  build.method = opt.method == "fitted" ? cip::PatchMethod::Fitted : cip::PatchMethod::Paper;
   build.skipNonFinite = opt.skipNonFinite;
   build.threads = opt.threads;
   stats.isovalue = build.isovalue;
   stats.normals = opt.normals;
   stats.central = opt.central;
+  stats.method = opt.method;
 
   auto t1 = Clock::now();
   cip::Model model;
@@ -131,6 +134,14 @@ int run(const Options& opt) {
     cip::TriangleMesh mesh = cip::marchingCubes(model, mo);
     stats.bytesWritten[opt.mcMesh] = cip::writePly(mesh, opt.mcMesh);
     stats.seconds["marching_cubes"] = secondsSince(t3);
+  }
+  if (!opt.patchMesh.empty()) {
+    auto t4 = Clock::now();
+    cip::PatchMeshOptions po;
+    po.threads = opt.threads;
+    cip::TriangleMesh mesh = cip::patchMesh(model, opt.subdiv, po);
+    stats.bytesWritten[opt.patchMesh] = cip::writePly(mesh, opt.patchMesh);
+    stats.seconds["patch_mesh"] = secondsSince(t4);
   }
   if (!opt.quiet) {
     std::fprintf(stderr, "%s: %zu non-empty cells, %zu isovertices, %zu bytes\n", opt.output.c_str(),
@@ -161,6 +172,9 @@ int main(int argc, char** argv) {
   app.add_option("--central", opt.central, "central coefficient: zero (default) or interior (eq. 6 at a reference "
                                            "surface point inside the cell)")
       ->check(CLI::IsMember({"zero", "interior"}));
+  app.add_option("--method", opt.method, "patch coefficients: paper (the corner I-patch paper's rules) or fitted "
+                                         "(see docs/method.md)")
+      ->check(CLI::IsMember({"paper", "fitted"}));
   app.add_option("--resolution", opt.resolution, "analytic fields: cells per axis over [-1,1]^3 (default 64)")
       ->check(CLI::Range(1, 4096));
   app.add_option("--dims", opt.dims, "raw input: grid points per axis, e.g. 64,64,93");
