@@ -128,7 +128,7 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   }
   for (int a = 0; a < 3; ++a) {
     auto d = r.get<std::int64_t>("dims");
-    if (d < 2 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
+    if (d < 1 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
     m.geometry.dims[a] = d;
   }
   for (int a = 0; a < 3; ++a) m.geometry.origin[a] = r.getFinite("origin");
