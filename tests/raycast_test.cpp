@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -511,4 +512,44 @@ TEST(Raycast, BadModelFileIsAnErrorAndWritesNothing) {
   opt.size = "32by24";
   EXPECT_THROW(runApp(opt), cip::Error);
   EXPECT_THROW(parseSize("0x10"), cip::Error);
+}
+
+// The command itself: a bad model file gives one line on stderr, a non-zero exit status and no output files.
+TEST(Raycast, CommandRejectsBadModelWithOneLine) {
+  const fs::path dir = scratchDir();
+  const fs::path bad = dir / "garbage2.cip", out = dir / "cli.exr", png = dir / "cli.png",
+                 err = dir / "cli.err";
+  {
+    std::ofstream f(bad, std::ios::binary);
+    f << "CIPM but not really a model";
+  }
+  fs::remove(out);
+  fs::remove(png);
+  const std::string cmd = std::string(CIP_RAYCAST_EXE) + " '" + bad.string() + "' -o '" + out.string() +
+                          "' --png '" + png.string() + "' 2> '" + err.string() + "'";
+  const int status = std::system(cmd.c_str());
+  EXPECT_NE(status, 0);
+  EXPECT_FALSE(fs::exists(out));
+  EXPECT_FALSE(fs::exists(png));
+  std::ifstream in(err);
+  std::string line, rest;
+  std::getline(in, line);
+  EXPECT_EQ(line.rfind("raycast: ", 0), 0u) << line;
+  EXPECT_NE(line.find("garbage2.cip"), std::string::npos) << line;
+  EXPECT_FALSE(std::getline(in, rest)) << "more than one line: " << rest;
+  // --help documents every option with an example.
+  const fs::path help = dir / "help.txt";
+  ASSERT_EQ(std::system((std::string(CIP_RAYCAST_EXE) + " --help > '" + help.string() + "'").c_str()), 0);
+  std::ifstream h(help);
+  const std::string text((std::istreambuf_iterator<char>(h)), std::istreambuf_iterator<char>());
+  for (const char* flag :
+       {"--mesh", "--png", "--size", "--spp", "--eye", "--look", "--up", "--fov", "--ortho", "--shading",
+        "--shadows", "--curvature-range", "--threads", "--stats-json", "--quiet"}) {
+    auto at = text.find(std::string("  ") + flag);
+    if (at == std::string::npos)
+      at = text.find(std::string(",") + flag);  // short and long name, e.g. -q,--quiet
+    ASSERT_NE(at, std::string::npos) << flag;
+    const auto end = text.find("\n  -", at + 3);
+    EXPECT_NE(text.substr(at, end - at).find("e.g."), std::string::npos) << flag;
+  }
 }
