@@ -5,10 +5,12 @@
 #include "cip/vdb_reader.h"
 
 #include <gtest/gtest.h>
+#include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <map>
 
 #include "cip/model_builder.h"
@@ -291,6 +293,25 @@ TEST(VdbReader, GridsWithoutActiveVoxelsOrWithRotations) {
   EXPECT_EQ(t.geometry.dims, (std::array<std::int64_t, 3>{19, 18, 18}));
   EXPECT_EQ(t.ownedCellCount(), 18 * 17 * 17);  // every cell has an active corner
   EXPECT_EQ(t.bricks.size(), 27u);
+  // A stream without grid offsets (written by io::Stream), and an instance sharing the tree of another grid.
+  auto instance = dbl->copyGrid();
+  instance->setName("instance");
+  {
+    std::ofstream out(dir.file("s.vdb"), std::ios::binary);
+    openvdb::io::Stream(out).write(openvdb::GridCPtrVec{vec, rotated, dbl});
+  }
+  openvdb::io::File(dir.file("i.vdb")).write(openvdb::GridCPtrVec{vec, dbl, instance});
+  for (const char* file : {"s.vdb", "i.vdb"}) {
+    o.gridName = file == std::string("s.vdb") ? "dbl" : "instance";
+    SparseVolume w = readVdb(dir.file(file), o);
+    EXPECT_EQ(w.geometry.dims, v.geometry.dims) << file;
+    EXPECT_EQ(w.bricks.size(), 2u) << file;
+    EXPECT_EQ(w.grids[0].values, v.grids[0].values) << file;
+    EXPECT_EQ(w.grids[1].values, v.grids[1].values) << file;
+  }
+  o.gridName = "nothing";
+  expectError([&] { readVdb(dir.file("i.vdb"), o); },
+              {"no grid named 'nothing'", "'velocity' (vec3s)", "'dbl'", "'instance' (double)"});
   // Default grid: the first float or double grid (the vector grid is skipped), here the empty one.
   expectError([&] { readVdb(path, VdbReadOptions{}); }, {path, "'empty' has no active voxels"});
 }

@@ -1,5 +1,6 @@
 #include "cip/vdb_reader.h"
 
+#include <openvdb/io/GridDescriptor.h>
 #include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
 #include <tbb/blocked_range.h>
@@ -56,6 +57,63 @@ std::string listing(const std::vector<VdbGridInfo>& infos) {
   for (const auto& g : infos) s += (s.empty() ? "" : ", ") + ("'" + g.name + "' (" + g.valueType + ")");
   return s.empty() ? "none" : s;
 }
+
+/// Reads the one grid wanted from a VDB stream, skipping the others by their stored end offsets (files
+/// written by OpenVDB's File have them; for streams without offsets, earlier grids are read and dropped). A
+/// grid that shares its tree with another (an instance) is read together with every other grid, as OpenVDB's
+/// Stream does.
+class GridSelector : public openvdb::io::Archive {
+ public:
+  openvdb::io::Archive::Ptr copy() const override { return std::make_shared<GridSelector>(*this); }
+
+  /// `wanted` empty: the first float or double grid. Fills `infos` with the grids seen (all of them unless
+  /// the wanted one was found first). Returns nullptr when no grid matches.
+  openvdb::GridBase::Ptr read(std::istream& is, const std::string& wanted, std::vector<VdbGridInfo>& infos) {
+    readHeader(is);
+    openvdb::io::StreamMetadata::Ptr streamMetadata(new openvdb::io::StreamMetadata);
+    openvdb::io::setStreamMetadataPtr(is, streamMetadata, /*transfer=*/false);
+    openvdb::io::setVersion(is, libraryVersion(), fileVersion());
+    openvdb::io::setDataCompression(is, compression());
+    openvdb::MetaMap fileMeta;
+    fileMeta.readMeta(is);
+    const std::int32_t count = readGridCount(is);
+    for (std::int32_t n = 0; n < count; ++n) {
+      openvdb::io::GridDescriptor gd;
+      openvdb::GridBase::Ptr grid =
+          gd.read(is);  // an empty grid of the stored type (throws for unknown types)
+      if (!grid) return nullptr;
+      const std::string valueType = grid->valueType();
+      infos.push_back({gd.gridName(), valueType, "unknown"});
+      const bool scalar = valueType == "float" || valueType == "double";
+      const bool match = wanted.empty() ? scalar : gd.gridName() == wanted;
+      if (match && gd.isInstance()) return readEverything(is, gd, infos);
+      if (match || !inputHasGridOffsets()) {
+        openvdb::io::Archive::readGrid(grid, gd, is);
+        infos.back().gridClass = gridClassName(grid->getGridClass());
+        if (match) return grid;
+      } else {
+        gd.seekToEnd(is);
+      }
+    }
+    return nullptr;
+  }
+
+ private:
+  /// Fallback for instances: read the whole stream again from the start with OpenVDB's Stream.
+  openvdb::GridBase::Ptr readEverything(std::istream& is, const openvdb::io::GridDescriptor& wanted,
+                                        std::vector<VdbGridInfo>& infos) {
+    is.clear();
+    is.seekg(0);
+    openvdb::io::Stream stream(is, /*delayLoad=*/false);
+    openvdb::GridBase::Ptr found;
+    infos.clear();
+    for (const auto& g : *stream.getGrids()) {
+      infos.push_back({g->getName(), g->valueType(), gridClassName(g->getGridClass())});
+      if (!found && g->getName() == wanted.gridName()) found = g;
+    }
+    return found;
+  }
+};
 
 using BrickKey = std::array<std::int64_t, 3>;
 
@@ -250,15 +308,16 @@ SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
   fileSizeOf(path);
   initializeOpenVdb();
   // Read through a stream with exceptions enabled: OpenVDB does not notice a file that ends early (its tree
-  // would silently miss values), the stream does. This loads every grid of the file; only the chosen one is
-  // kept.
+  // would silently miss values), the stream does.
   openvdb::GridPtrVecPtr grids;
+  openvdb::GridBase::Ptr base;
+  std::vector<VdbGridInfo> infos;
   try {
     std::ifstream in(path, std::ios::binary);
     if (!in) throw Error(path + ": cannot open");
     in.exceptions(std::ios::badbit | std::ios::failbit);
-    openvdb::io::Stream stream(in, false);
-    grids = stream.getGrids();
+    GridSelector selector;
+    base = selector.read(in, options.gridName, infos);
   } catch (const openvdb::Exception& e) {
     throw Error(path + ": cannot read VDB file: " + e.what());
   } catch (const std::ios_base::failure&) {
@@ -267,15 +326,7 @@ SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
     // Corrupt files can also make OpenVDB fail inside the standard library (bad sizes, allocation failures).
     throw Error(path + ": cannot read VDB file (corrupt?): " + e.what());
   }
-  std::vector<VdbGridInfo> infos;
-  for (const auto& g : *grids)
-    infos.push_back({g->getName(), g->valueType(), gridClassName(g->getGridClass())});
   std::string name = options.gridName;
-  openvdb::GridBase::Ptr base;
-  for (std::size_t n = 0; n < infos.size() && !base; ++n) {
-    bool scalar = infos[n].valueType == "float" || infos[n].valueType == "double";
-    if (name.empty() ? scalar : infos[n].name == name) base = (*grids)[n];
-  }
   if (!base) {
     if (name.empty())
       throw Error(path + ": no float or double grid in the file (grids: " + listing(infos) + ")");

@@ -36,11 +36,12 @@ struct VdbGridInfo {
 /// Lists the grids of a .vdb file (metadata only). Throws cip::Error "<path>: ..." if it cannot be read.
 std::vector<VdbGridInfo> listVdbGrids(const std::string& path);
 
-/// Reads one scalar grid of a .vdb file as bricks. The file is read as a stream so that a truncated file is
-/// detected (OpenVDB alone fills the missing values silently); this loads every grid of the file while
-/// reading. Throws cip::Error (message starting with the path) for a missing or corrupt file, an unknown grid
-/// name (the message lists the file's grids), a grid that is not float or double, a grid without active
-/// voxels, an unsupported transform, or bricks over options.maxBytes.
+/// Reads one scalar grid of a .vdb file as bricks. Only that grid is loaded (others are skipped by their
+/// stored offsets), except in files without offsets and for instanced grids, where the grids before it are
+/// read too. A file that ends early is detected (OpenVDB alone would fill the missing values silently).
+/// Throws cip::Error (message starting with the path) for a missing or corrupt file, an unknown grid name
+/// (the message lists the file's grids), a grid that is not float or double, a grid without active voxels, an
+/// unsupported transform, or bricks over options.maxBytes.
 SparseVolume readVdb(const std::string& path, const VdbReadOptions& options = {});
 
 }  // namespace cip
