@@ -228,6 +228,29 @@ TEST(NrrdReader, LargeGzipDetachedMultiMemberAndZlib) {
   EXPECT_EQ(readNrrd(dir.file("z.nrrd")).values, reference.values);
 }
 
+TEST(NrrdReader, AsciiData) {
+  test::ScratchDir dir;
+  const std::string head = "NRRD0004\ntype: float\ndimension: 3\nsizes: 3 2 2\nencoding: ascii\n";
+  std::string text;
+  for (int k = 0; k < 2; ++k)
+    for (int j = 0; j < 2; ++j)
+      for (int i = 0; i < 3; ++i)
+        text += std::to_string(100 * i - 7 * j + 1000 * k - 1500) + (i == 2 ? "\n" : ", ");
+  test::writeAll(dir.file("a.nrrd"), head + "\n" + text);
+  expectPayload(readNrrd(dir.file("a.nrrd")));
+  test::writeAll(dir.file("a.txt"), "a comment line\n" + text + "\n\n");
+  test::writeAll(dir.file("d.nhdr"), head + "line skip: 1\ndata file: a.txt\n");
+  expectPayload(readNrrd(dir.file("d.nhdr")));
+  test::writeAll(dir.file("more.nrrd"), head + "\n" + text + " 5");
+  expectError([&] { readNrrd(dir.file("more.nrrd")); }, {"more.nrrd", "more than the 12 values"});
+  test::writeAll(dir.file("less.nrrd"), head + "\n" + text.substr(0, text.size() / 2) + "          ");
+  expectError([&] { readNrrd(dir.file("less.nrrd")); }, {"less.nrrd", "of 12 values"});
+  test::writeAll(dir.file("nan.nrrd"), head + "\n" + "1 2 3 4 5 6 7 8 9 10 11 twelve");
+  expectError([&] { readNrrd(dir.file("nan.nrrd")); }, {"nan.nrrd", "value 12 ('twelve')"});
+  test::writeAll(dir.file("tiny.nrrd"), head + "\n" + "1 2");
+  expectError([&] { readNrrd(dir.file("tiny.nrrd")); }, {"tiny.nrrd", "cannot hold the 12 values"});
+}
+
 TEST(NrrdReader, DetachedWithSkips) {
   test::ScratchDir dir;
   test::writeAll(dir.file("d.raw"), "line one\nline two\nXYZ" + payload());

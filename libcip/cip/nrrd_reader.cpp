@@ -308,8 +308,10 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
       h.encoding = NrrdEncoding::Raw;
     } else if (e == "gzip" || e == "gz") {
       h.encoding = NrrdEncoding::Gzip;
-    } else if (e == "ascii" || e == "text" || e == "txt" || e == "hex" || e == "bzip2" || e == "bz2") {
-      fail(f.line, "encoding '" + f.value + "' is not supported (raw and gzip are)");
+    } else if (e == "ascii" || e == "text" || e == "txt") {
+      h.encoding = NrrdEncoding::Ascii;
+    } else if (e == "hex" || e == "bzip2" || e == "bz2") {
+      fail(f.line, "encoding '" + f.value + "' is not supported (raw, gzip and ascii are)");
     } else {
       fail(f.line, "unknown encoding '" + f.value + "'");
     }
@@ -321,7 +323,7 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
     } catch (const Error& e) {
       fail(f->line, e.what());
     }
-  } else if (sampleSize(h.type) > 1) {
+  } else if (sampleSize(h.type) > 1 && h.encoding != NrrdEncoding::Ascii) {
     throw Error("header has no 'endian' field, needed for " + std::string(toString(h.type)) + " samples");
   }
   // data location
@@ -343,6 +345,8 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
     h.byteSkip = parseInteger(f->value, f->line, "byte skip");
     if (h.byteSkip < -1) fail(f->line, "byte skip must be -1 or more");
     if (h.byteSkip == -1 && h.encoding != NrrdEncoding::Raw) fail(f->line, "byte skip -1 needs raw encoding");
+    if (h.byteSkip != 0 && h.encoding == NrrdEncoding::Ascii)
+      fail(f->line, "byte skip is not allowed with ascii encoding");
     if (h.encoding == NrrdEncoding::Gzip && h.byteSkip > kMaxCompressedSkip) {
       fail(f->line, "byte skip " + f->value + " is too large for compressed data (at most 1 GiB)");
     }
@@ -388,6 +392,52 @@ std::uint64_t skipLines(const std::string& path, std::uint64_t start, std::int64
   }
 }
 
+/// Reads grid.values.size() numbers separated by blanks or commas; anything but blanks after them is an
+/// error.
+void readAsciiInto(ByteSource& source, DenseGrid& grid) {
+  constexpr std::size_t kMaxToken = 128;
+  std::vector<char> buffer(std::size_t(1) << 20);
+  std::string token;
+  std::size_t done = 0;
+  const std::size_t total = grid.values.size();
+  auto flush = [&] {
+    if (token.empty()) return;
+    if (done == total) {
+      throw Error(source.path() + ": ascii data has more than the " + std::to_string(total) +
+                  " values declared");
+    }
+    char* end = nullptr;
+    double v = std::strtod(token.c_str(), &end);
+    if (end == token.c_str() || *end != '\0') {
+      throw Error(source.path() + ": ascii value " + std::to_string(done + 1) + " ('" + token +
+                  "') is not a number");
+    }
+    grid.values[done++] = v;
+    token.clear();
+  };
+  while (true) {
+    std::size_t got = source.read(buffer.data(), buffer.size());
+    for (std::size_t i = 0; i < got; ++i) {
+      char c = buffer[i];
+      if (std::isspace(static_cast<unsigned char>(c)) || c == ',') {
+        flush();
+      } else {
+        token += c;
+        if (token.size() > kMaxToken) {
+          throw Error(source.path() + ": ascii value " + std::to_string(done + 1) + " is longer than " +
+                      std::to_string(kMaxToken) + " characters");
+        }
+      }
+    }
+    if (got < buffer.size()) break;
+  }
+  flush();
+  if (done < total) {
+    throw Error(source.path() + ": ascii data ends after " + std::to_string(done) + " of " +
+                std::to_string(total) + " values");
+  }
+}
+
 }  // namespace
 
 DenseGrid readNrrd(const std::string& path, std::size_t maxBytes) {
@@ -415,7 +465,17 @@ DenseGrid readNrrd(const std::string& path, std::size_t maxBytes) {
 
   DenseGrid grid;
   std::unique_ptr<ByteSource> source;
-  if (h.encoding == NrrdEncoding::Raw) {
+  if (h.encoding == NrrdEncoding::Ascii) {
+    // Every value takes at least one character and one separator: reject files too small before allocating.
+    const std::uint64_t available = fileBytes > start ? fileBytes - start : 0;
+    if (available + 1 < 2 * static_cast<std::uint64_t>(count)) {
+      throw Error(dataPath + ": " + std::to_string(available) + " bytes of text cannot hold the " +
+                  std::to_string(count) + " values declared by " + path);
+    }
+    grid.allocate(h.dims, maxBytes);
+    FileByteSource text(dataPath, start);
+    readAsciiInto(text, grid);
+  } else if (h.encoding == NrrdEncoding::Raw) {
     std::uint64_t offset = start + static_cast<std::uint64_t>(std::max<std::int64_t>(h.byteSkip, 0));
     if (h.byteSkip == -1) {
       if (fileBytes < start + dataBytes) {
@@ -443,7 +503,7 @@ DenseGrid readNrrd(const std::string& path, std::size_t maxBytes) {
                   " bytes of byte skip");
     }
   }
-  readSamplesInto(*source, h.type, h.endian, grid);
+  if (source) readSamplesInto(*source, h.type, h.endian, grid);
   if (h.encoding == NrrdEncoding::Gzip) source->expectEnd("compressed data");
   grid.geometry.spacing = h.spacing;
   grid.geometry.origin = h.origin;

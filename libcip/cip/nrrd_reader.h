@@ -5,11 +5,11 @@
 /// voxel); every common spelling of the sample types in sample_type.h; `sizes`; `spacings` or axis-aligned
 /// `space directions` (the length of each direction is the spacing; a negative direction is taken by its
 /// length, i.e. axis flips are not applied); `space origin` (world position of the first sample); `endian`;
-/// `encoding` raw or gzip; `data file` (relative to the header's directory) or data attached after the
-/// header's blank line; `byte skip` (-1 = data at the end of the file, raw only; for gzip it counts inflated
-/// bytes) and `line skip`. Not supported, with a clear error: other encodings (ascii, hex, bzip2), multi-file
-/// data, rotated or sheared space directions, more than one component per voxel, 64-bit integer and block
-/// types.
+/// `encoding` raw, gzip or ascii (numbers separated by blanks or commas); `data file` (relative to the
+/// header's directory) or data attached after the header's blank line; `byte skip` (-1 = data at the end of
+/// the file, raw only; for gzip it counts inflated bytes; ascii: 0 only) and `line skip`. Not supported, with
+/// a clear error: other encodings (hex, bzip2), multi-file data, rotated or sheared space directions, more
+/// than one component per voxel, 64-bit integer and block types.
 #pragma once
 #include <cstdint>
 #include <string>
@@ -20,7 +20,7 @@
 
 namespace cip {
 
-enum class NrrdEncoding : std::uint8_t { Raw, Gzip };
+enum class NrrdEncoding : std::uint8_t { Raw, Gzip, Ascii };
 
 /// What a NRRD header says about its volume (only the fields cip uses).
 struct NrrdHeader {
