@@ -553,3 +553,57 @@ TEST(Raycast, CommandRejectsBadModelWithOneLine) {
     EXPECT_NE(text.substr(at, end - at).find("e.g."), std::string::npos) << flag;
   }
 }
+
+TEST(Raycast, MeanCurvatureOfTheSphere) {
+  // f = |x|: gradient x/r, Hessian (I - n n^T)/r: H = 1/r.
+  const Vec3 p(0.3, -0.2, 0.6);
+  const double r = p.norm();
+  const Vec3 n = p / r;
+  EXPECT_NEAR(meanCurvature(n, (Mat3::Identity() - n * n.transpose()) / r), 1.0 / r, 1e-14);
+  EXPECT_NEAR(meanCurvature(-n, -(Mat3::Identity() - n * n.transpose()) / r), -1.0 / r, 1e-14);
+  EXPECT_TRUE(std::isnan(meanCurvature(Vec3::Zero(), Mat3::Identity())));
+  // From the patches' exact Hessians, converted to world units: equal to half the divergence of the unit
+  // world gradient by central differences. (The patch surface's own curvature does not converge to 1/r with
+  // resolution: the median over the image is printed, and only checked for sign and size.)
+  const Model model = sampledModel("sphere", 32);
+  const PatchScene scene(model);
+  const Camera camera = makeCamera(CameraSettings{}, scene.bounds(), 64, 48);
+  std::vector<double> k;
+  double maxRel = 0;
+  for (int y = 0; y < camera.height(); ++y)
+    for (int x = 0; x < camera.width(); ++x) {
+      const Ray ray = camera.ray(x + 0.5, y + 0.5);
+      SurfaceHit hit;
+      if (!scene.intersect(ray, 0, std::numeric_limits<double>::infinity(), hit)) continue;
+      ASSERT_TRUE(std::isfinite(hit.meanCurvature));
+      k.push_back(hit.meanCurvature);
+      const CornerPatch& patch = scene.patch(hit.id);
+      auto unitGradient = [&](const Vec3& world) {
+        const Vec3 g = patch.derivatives(scene.worldToLocal(world, hit.id))
+                           .gradient.cwiseQuotient(model.geometry.spacing);
+        return Vec3(g.normalized());
+      };
+      const double e = 1e-5 * model.geometry.spacing.x();
+      double div = 0;
+      for (int a = 0; a < 3; ++a) {
+        const Vec3 d = e * Vec3::Unit(a);
+        div += (unitGradient(hit.position + d)[a] - unitGradient(hit.position - d)[a]) / (2 * e);
+      }
+      maxRel = std::max(maxRel, std::abs(0.5 * div - hit.meanCurvature) / (1 + std::abs(hit.meanCurvature)));
+    }
+  ASSERT_GT(k.size(), 300u);
+  EXPECT_LT(maxRel, 1e-4);
+  std::nth_element(k.begin(), k.begin() + static_cast<std::ptrdiff_t>(k.size() / 2), k.end());
+  std::printf(
+      "sphere N=32: median mean curvature %.4f (true sphere %.4f), max deviation from differences %.2g\n",
+      k[k.size() / 2], 1.0 / kRadius, maxRel);
+  EXPECT_GT(k[k.size() / 2], 0.7 / kRadius);
+  EXPECT_LT(k[k.size() / 2], 1.5 / kRadius);
+  // Curvature mode: the automatic colour range is symmetric about zero.
+  RenderOptions options;
+  options.shading.mode = ShadingMode::Curvature;
+  RenderStats stats;
+  render(scene, camera, options, &stats);
+  EXPECT_GT(stats.curvatureHi, 0);
+  EXPECT_EQ(stats.curvatureLo, -stats.curvatureHi);
+}
