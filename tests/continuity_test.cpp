@@ -83,38 +83,42 @@ class LinearField : public ::testing::TestWithParam<ModeAndMethod> {};
 
 TEST_P(LinearField, ReproducedExactlyByEveryCell) {
   auto field = makeAnalyticField("plane");
-  DenseGrid g = sampleField(*field, 8, "plane");
-  BuildOptions o;
-  o.normals = std::get<0>(GetParam());
-  o.method = std::get<1>(GetParam());
-  o.exactField = field.get();
-  Model m = buildModel(g, o);
-  ASSERT_GT(m.cells.size(), 20u);
-  std::mt19937 rng(5);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  const Vec3 n = field->gradient(Vec3::Zero());
-  for (std::size_t c = 0; c < m.cells.size(); ++c) {
-    CornerPatch p = m.patch(c);
-    Vec3 origin = m.cellOrigin(c);
-    auto planeValue = [&](const Vec3& local) {
-      return field->value(m.geometry.indexToWorld(origin + local));
-    };
-    for (int s = 0; s < 50; ++s) {
-      Vec3 x(u(rng), u(rng), u(rng));
-      double l = planeValue(x), value = p.value(x);
-      // Same sign everywhere in the cell (the patch is the plane times a positive factor).
-      if (std::abs(l) > 1e-9) {
-        EXPECT_EQ(value > 0, l > 0) << "cell " << c;
-      }
-      // Points on the plane are zeros: project x onto the plane (world), back to cell-local.
-      Vec3 w = m.geometry.indexToWorld(origin + x);
-      Vec3 onPlane = m.geometry.worldToIndex(w - l / n.squaredNorm() * n) - origin;
-      if ((onPlane.array() >= 0).all() && (onPlane.array() <= 1).all()) {
-        PatchDerivatives d = p.derivatives(onPlane);
-        EXPECT_LT(std::abs(d.value) / d.gradient.norm(), 1e-13) << "cell " << c;
-        // The normal is the plane's normal (index space direction of the world gradient).
-        Vec3 expected = n.cwiseProduct(m.geometry.spacing).normalized();
-        EXPECT_NEAR(d.gradient.normalized().dot(expected), 1.0, 1e-12);
+  // Several resolutions: at some, crossings land on or near grid points (small eq. 5 denominators).
+  // Tolerance: 1e-12 voxel, rounding level for these coordinates.
+  for (int resolution : {8, 16, 23}) {
+    DenseGrid g = sampleField(*field, resolution, "plane");
+    BuildOptions o;
+    o.normals = std::get<0>(GetParam());
+    o.method = std::get<1>(GetParam());
+    o.exactField = field.get();
+    Model m = buildModel(g, o);
+    ASSERT_GT(m.cells.size(), 20u);
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    const Vec3 n = field->gradient(Vec3::Zero());
+    for (std::size_t c = 0; c < m.cells.size(); ++c) {
+      CornerPatch p = m.patch(c);
+      Vec3 origin = m.cellOrigin(c);
+      auto planeValue = [&](const Vec3& local) {
+        return field->value(m.geometry.indexToWorld(origin + local));
+      };
+      for (int s = 0; s < 50; ++s) {
+        Vec3 x(u(rng), u(rng), u(rng));
+        double l = planeValue(x), value = p.value(x);
+        // Same sign everywhere in the cell (the patch is the plane times a positive factor).
+        if (std::abs(l) > 1e-9) {
+          EXPECT_EQ(value > 0, l > 0) << "N " << resolution << " cell " << c;
+        }
+        // Points on the plane are zeros: project x onto the plane (world), back to cell-local.
+        Vec3 w = m.geometry.indexToWorld(origin + x);
+        Vec3 onPlane = m.geometry.worldToIndex(w - l / n.squaredNorm() * n) - origin;
+        if ((onPlane.array() >= 0).all() && (onPlane.array() <= 1).all()) {
+          PatchDerivatives d = p.derivatives(onPlane);
+          EXPECT_LT(std::abs(d.value) / d.gradient.norm(), 1e-12) << "N " << resolution << " cell " << c;
+          // The normal is the plane's normal (index space direction of the world gradient).
+          Vec3 expected = n.cwiseProduct(m.geometry.spacing).normalized();
+          EXPECT_NEAR(d.gradient.normalized().dot(expected), 1.0, 1e-12);
+        }
       }
     }
   }

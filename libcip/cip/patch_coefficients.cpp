@@ -83,9 +83,14 @@ FaceRestriction faceRestriction(const FaceCrossings& face, const Vec2& q) {
     for (int j = 0; j < 4; ++j)
       if (j != k && ((face.crossed >> j) & 1)) term *= perp2[j];
     r.cornerPart += term;
+    r.cornerMagnitude += std::abs(term);
   }
   return r;
 }
+
+// Eq. 5 divides by D = prod P_j^2 at the side point; below this (e.g. a side point within ~1e-5 of two face
+// borders, as when two isovertices meet at a grid point) the coefficient would be decided by rounding.
+constexpr double kMinSideBasis = 1e-20;
 
 double fitFaceCoefficient(const FaceCrossings& face) {
   std::array<std::array<int, 2>, 2> segs;
@@ -93,10 +98,12 @@ double fitFaceCoefficient(const FaceCrossings& face) {
   double num = 0, den = 0;
   for (int s = 0; s < n; ++s) {
     FaceRestriction r = faceRestriction(face, sidePoint(face, segs[s][0], segs[s][1]));
-    num += r.cornerPart * r.sideBasis;
+    if (r.sideBasis < kMinSideBasis) continue;  // side point (numerically) on the face border
+    double cornerPart = std::abs(r.cornerPart) <= 1e-12 * r.cornerMagnitude ? 0.0 : r.cornerPart;
+    num += cornerPart * r.sideBasis;
     den += r.sideBasis * r.sideBasis;
   }
-  if (!(den > 1e-300)) return 0.0;
+  if (!(den > 0)) return 0.0;
   return -num / den;
 }
 

@@ -40,11 +40,15 @@ int faceSegments(const FaceCrossings& face, std::array<std::array<int, 2>, 2>& s
 struct FaceRestriction {
   double cornerPart = 0;  ///< R(q) = sum_k a_k S_k(q) prod_{j crossed, j != k} P_j(q)^2
   double sideBasis = 0;   ///< D(q) = prod_{j crossed} P_j(q)^2 (P_j: the plane perpendicular to edge j's face side)
+  double cornerMagnitude = 0;  ///< sum of |terms| of R(q): the scale against which R(q) is rounding noise
 };
 FaceRestriction faceRestriction(const FaceCrossings& face, const Vec2& q);
 
 /// Side coefficient of the face: eq. 5 at its side point; an ambiguous face (two segments) fits both side points in
-/// the least-squares sense. Zero when a side point lies on the face border (eq. 5 undefined there).
+/// the least-squares sense. Side points on (or within rounding of) the face border are left out (eq. 5 is undefined
+/// there); with none left the coefficient is zero. A corner part
+/// that is rounding noise (|R| <= 1e-12 sum|terms|, e.g. when the corner planes are one plane) counts as zero:
+/// dividing noise by a small D would otherwise give an arbitrary, possibly huge, coefficient.
 double fitFaceCoefficient(const FaceCrossings& face);
 
 /// Central coefficient that makes the patch vanish at `interior` (cell-local): eq. 6. Returns 0 when `interior`
