@@ -325,8 +325,10 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         }
         ModelCell& mc = model.cells[c];
         CellLoops loops;
-        CornerPatch patch = buildCellPatch(ref.config, local, &mc.pairing03, &loops, options.fitCoefficients);
-        if (options.fitCoefficients && options.central == CentralRule::Interior) {
+        // PatchMethod::Fitted replaces the coefficients afterwards (fitModelPatches).
+        const bool paperCoefficients = options.fitCoefficients && options.method == PatchMethod::Paper;
+        CornerPatch patch = buildCellPatch(ref.config, local, &mc.pairing03, &loops, paperCoefficients);
+        if (paperCoefficients && options.central == CentralRule::Interior) {
           Vec3 p;
           std::function<double(const Vec3&)> reference;
           if (options.exactField) {
@@ -361,21 +363,25 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         if (done % 4096 == 0) progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
       }
     });
-    if (options.method == PatchMethod::Fitted) {
+    if (options.fitCoefficients && options.method == PatchMethod::Fitted) {
       // Reference: the analytic field in exact mode, else the tricubic interpolant of the cell's brick.
-      fitModelPatches(model, [&](std::size_t c) {
+      const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
+      FittingStats stats = fitModelPatches(model, [&](std::size_t c) {
         auto gc = global.coords(cells[c].key);
+        CellReference ref;
         if (options.normals == NormalMode::Exact) {
-          CellReference ref;
           ref.field = options.exactField;
           ref.geometry = &model.geometry;
           ref.origin = Vec3(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
           ref.isovalue = iso;
-          return ref;
+        } else {
+          const GridBrick& b = bricks[cells[c].brick];
+          ref = tricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]}, iso);
         }
-        const GridBrick& b = bricks[cells[c].brick];
-        return tricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]}, iso);
+        ref.metric = metric;
+        return ref;
       });
+      if (options.fittingStats) *options.fittingStats = stats;
     }
   });
   progress.set(1.0);

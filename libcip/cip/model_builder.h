@@ -9,6 +9,8 @@
 
 namespace cip {
 
+struct FittingStats;  // patch_fitting.h
+
 /// How the central coefficient w of each cell is set.
 enum class CentralRule : std::uint8_t {
   Zero = 0,      ///< w = 0 (the paper's examples)
@@ -23,6 +25,8 @@ struct BuildOptions {
   /// Coefficient construction. PatchMethod::Fitted (patch_fitting.h) ignores `central`; with NormalMode::Gradient it
   /// also places isovertices on the Catmull-Rom cubic along each edge, with the tricubic interpolant's gradient.
   PatchMethod method = PatchMethod::Paper;
+  /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took.
+  FittingStats* fittingStats = nullptr;
   /// Analytic field sampled by the grid (world coordinates); required for NormalMode::Exact.
   const ScalarField* exactField = nullptr;
   /// Cells with a NaN or infinite corner value are skipped (left empty) instead of failing the build.

@@ -22,7 +22,7 @@ constexpr std::array<double, 5> kBlend{0.0, 0.25, 0.5, 0.75, 1.0};
 constexpr int kMaxLevel = static_cast<int>(kBlend.size()) - 1;
 /// Samples per axis of the sign checks: face lattice (kFaceLattice^2) and cell lattice (kCellLattice^3), at
 /// (a + 1/2) / n.
-constexpr int kFaceLattice = 9, kCellLattice = 7;
+constexpr int kFaceLattice = 7, kCellLattice = 6;
 /// Samples closer than this to the reference surface (first-order estimate |f| / |grad f|, voxels) are not
 /// checked.
 constexpr double kMarginVoxels = 0.35;
@@ -68,17 +68,27 @@ double extendedSample(const DenseGrid& grid, std::array<std::int64_t, 3> p) {
 struct Interval {
   double lo = -kInf, hi = kInf;
   bool empty = false;
+  // The tightest bounds so far as fractions -a / b (b > 0), compared without dividing.
+  double loA = 0, loB = 0, hiA = 0, hiB = 0;
   void add(bool positive, double a, double b) {
     if (!(b > 1e-300)) {
       if ((a > 0) != positive) empty = true;
       return;
     }
-    double t = -a / b;
     if (positive) {
-      lo = std::max(lo, t);
-    } else {
-      hi = std::min(hi, t);
+      if (loB == 0 || a * loB < loA * b) {
+        loA = a;
+        loB = b;
+      }
+    } else if (hiB == 0 || a * hiB > hiA * b) {
+      hiA = a;
+      hiB = b;
     }
+  }
+  /// Turns the fractions into lo and hi; call once after the last add.
+  void finish() {
+    if (loB != 0) lo = -loA / loB;
+    if (hiB != 0) hi = -hiA / hiB;
   }
   bool feasible() const { return !empty && lo < hi; }
   /// `w` moved into the interval, kept a relative margin away from each end (an end puts the zero set through
@@ -92,6 +102,164 @@ struct Interval {
   }
 };
 
+/// Reference values at the cell lattice ((a + 1/2) / n per axis, index a + n (b + n d)). The tricubic
+/// interpolant is contracted one axis at a time (the weights are the same on every axis).
+template <int n>
+void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n>& out) {
+  if (ref.field) {
+    for (int d = 0; d < n; ++d)
+      for (int b = 0; b < n; ++b)
+        for (int a = 0; a < n; ++a)
+          out[static_cast<std::size_t>(a + n * (b + n * d))] =
+              ref.value(Vec3((a + 0.5) / n, (b + 0.5) / n, (d + 0.5) / n));
+    return;
+  }
+  double w[n][4];
+  for (int i = 0; i < n; ++i) catmullRom((i + 0.5) / n, w[i], nullptr);
+  double ax[n][16], bxy[n * n][4];
+  for (int a = 0; a < n; ++a)
+    for (int jk = 0; jk < 16; ++jk) {
+      const double* row = &ref.samples[static_cast<std::size_t>(4 * jk)];
+      ax[a][jk] = w[a][0] * row[0] + w[a][1] * row[1] + w[a][2] * row[2] + w[a][3] * row[3];
+    }
+  for (int b = 0; b < n; ++b)
+    for (int a = 0; a < n; ++a)
+      for (int k = 0; k < 4; ++k)
+        bxy[a + n * b][k] = w[b][0] * ax[a][4 * k] + w[b][1] * ax[a][1 + 4 * k] + w[b][2] * ax[a][2 + 4 * k] +
+                            w[b][3] * ax[a][3 + 4 * k];
+  for (int d = 0; d < n; ++d)
+    for (int ab = 0; ab < n * n; ++ab)
+      out[static_cast<std::size_t>(ab + n * n * d)] = w[d][0] * bxy[ab][0] + w[d][1] * bxy[ab][1] +
+                                                      w[d][2] * bxy[ab][2] + w[d][3] * bxy[ab][3] -
+                                                      ref.isovalue;
+}
+
+/// Reference values and gradients on face f at ((a + 1/2) / n, (b + 1/2) / n) in the face frame (index a + n
+/// b).
+template <int n>
+void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n * n>& value,
+                          std::array<Vec3, n * n>& gradient) {
+  const int axis = cube::faceAxis(f), side = cube::faceSide(f);
+  const auto uv = cube::otherAxes(axis);
+  if (ref.field) {
+    for (int b = 0; b < n; ++b)
+      for (int a = 0; a < n; ++a) {
+        Vec3 x;
+        x[axis] = side;
+        x[uv[0]] = (a + 0.5) / n;
+        x[uv[1]] = (b + 0.5) / n;
+        value[static_cast<std::size_t>(a + n * b)] = ref.value(x);
+        gradient[static_cast<std::size_t>(a + n * b)] = ref.gradient(x);
+      }
+    return;
+  }
+  // In-plane samples (node 1 + side across the face) and the across-face derivative at the node.
+  const double dNode[2][4] = {{-0.5, 0, 0.5, 0}, {0, -0.5, 0, 0.5}};
+  double p0[4][4], p1[4][4];
+  for (int jb = 0; jb < 4; ++jb)
+    for (int ia = 0; ia < 4; ++ia) {
+      std::array<int, 3> i3{};
+      i3[uv[0]] = ia;
+      i3[uv[1]] = jb;
+      auto at = [&](int c) {
+        i3[axis] = c;
+        return ref.samples[static_cast<std::size_t>(i3[0] + 4 * (i3[1] + 4 * i3[2]))];
+      };
+      p0[ia][jb] = at(1 + side);
+      p1[ia][jb] =
+          dNode[side][0] * at(0) + dNode[side][1] * at(1) + dNode[side][2] * at(2) + dNode[side][3] * at(3);
+    }
+  double w[n][4], dw[n][4];
+  for (int i = 0; i < n; ++i) catmullRom((i + 0.5) / n, w[i], dw[i]);
+  double a0[n][4], ad[n][4], a1[n][4];
+  for (int a = 0; a < n; ++a)
+    for (int jb = 0; jb < 4; ++jb) {
+      a0[a][jb] = ad[a][jb] = a1[a][jb] = 0;
+      for (int ia = 0; ia < 4; ++ia) {
+        a0[a][jb] += w[a][ia] * p0[ia][jb];
+        ad[a][jb] += dw[a][ia] * p0[ia][jb];
+        a1[a][jb] += w[a][ia] * p1[ia][jb];
+      }
+    }
+  for (int b = 0; b < n; ++b)
+    for (int a = 0; a < n; ++a) {
+      double v = 0, gu = 0, gv = 0, gn = 0;
+      for (int jb = 0; jb < 4; ++jb) {
+        v += w[b][jb] * a0[a][jb];
+        gu += w[b][jb] * ad[a][jb];
+        gv += dw[b][jb] * a0[a][jb];
+        gn += w[b][jb] * a1[a][jb];
+      }
+      Vec3 g;
+      g[axis] = gn;
+      g[uv[0]] = gu;
+      g[uv[1]] = gv;
+      value[static_cast<std::size_t>(a + n * b)] = v - ref.isovalue;
+      gradient[static_cast<std::size_t>(a + n * b)] = g;
+    }
+}
+
+/// valueWithoutCentral and centralBasis of a patch at the cell lattice, by separable products: every term is
+/// a corner plane (linear) times squared face planes, each depending on one coordinate.
+template <int n>
+void patchCellLattice(const CornerPatch& patch, std::array<double, n * n * n>& value,
+                      std::array<double, n * n * n>& basis) {
+  // q[m][i]: product of the squared planes of one axis selected by m (bit 0: x = 0 plane, bit 1: x = 1
+  // plane).
+  double t[n], q[4][n];
+  for (int i = 0; i < n; ++i) {
+    t[i] = (i + 0.5) / n;
+    q[0][i] = 1;
+    q[1][i] = t[i] * t[i];
+    q[2][i] = (1 - t[i]) * (1 - t[i]);
+    q[3][i] = q[1][i] * q[2][i];
+  }
+  struct Term {
+    double coefficient;
+    Vec3 normal;  // zero for side terms
+    double offset;
+    int m[3];
+  };
+  std::array<Term, CornerPatch::kMaxTerms> terms;
+  int numTerms = 0;
+  auto split = [](std::uint8_t mask, int* m) {
+    for (int a = 0; a < 3; ++a) m[a] = (mask >> (2 * a)) & 3;
+  };
+  for (int c = 0; c < patch.numCorners; ++c) {
+    auto ef = cube::edgeFaces(patch.edge[c]);
+    Term& term = terms[static_cast<std::size_t>(numTerms++)];
+    term.coefficient = patch.weight[c];
+    term.normal = patch.normal[c];
+    term.offset = -patch.normal[c].dot(patch.point[c]);
+    split(static_cast<std::uint8_t>(patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]))), term.m);
+  }
+  for (int f = 0; f < 6; ++f) {
+    if (!((patch.faceMask >> f) & 1) || patch.faceCoefficient[f] == 0) continue;
+    Term& term = terms[static_cast<std::size_t>(numTerms++)];
+    term.coefficient = patch.faceCoefficient[f];
+    term.normal = Vec3::Zero();
+    term.offset = 1;
+    split(static_cast<std::uint8_t>(patch.faceMask & ~(1u << f)), term.m);
+  }
+  int central[3];
+  split(patch.faceMask, central);
+  for (int d = 0; d < n; ++d)
+    for (int b = 0; b < n; ++b) {
+      double* row = &value[static_cast<std::size_t>(n * (b + n * d))];
+      for (int a = 0; a < n; ++a) row[a] = 0;
+      for (int k = 0; k < numTerms; ++k) {
+        const Term& term = terms[static_cast<std::size_t>(k)];
+        double yz = term.coefficient * q[term.m[1]][b] * q[term.m[2]][d];
+        double planeYZ = term.normal.y() * t[b] + term.normal.z() * t[d] + term.offset;
+        const double* qx = q[term.m[0]];
+        for (int a = 0; a < n; ++a) row[a] += yz * (term.normal.x() * t[a] + planeYZ) * qx[a];
+      }
+      double yz = q[central[1]][b] * q[central[2]][d];
+      for (int a = 0; a < n; ++a)
+        basis[static_cast<std::size_t>(a + n * (b + n * d))] = yz * q[central[0]][a];
+    }
+}
+
 struct FaceEntry {
   std::uint64_t key = 0;
   std::array<std::uint32_t, 2> cell{};
@@ -104,33 +272,43 @@ struct FaceResult {
   bool ok = true;
 };
 
-FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellReference& ref) {
+/// Model::patch without recomputing the loops.
+CornerPatch patchOf(const Model& model, std::size_t c, const CellLoops& loops) {
+  const ModelCell& cell = model.cells[c];
+  CornerPatch p;
+  p.numCorners = cell.numCorners();
+  const Vec3 origin = model.cellOrigin(c);
+  for (int k = 0; k < p.numCorners; ++k) {
+    const IsoVertex& v = model.vertices[model.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]];
+    p.point[k] = v.position - origin;
+    p.normal[k] = v.normal;
+    p.weight[k] = v.weight;
+    p.edge[k] = loops.edges[k];
+  }
+  p.faceMask = loops.faceMask;
+  p.faceCoefficient = cell.faceCoefficient;
+  p.central = cell.central;
+  return p;
+}
+
+FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& loops,
+                   const CellReference& ref) {
   const std::size_t c = entry.cell[0];
   const int f = entry.face[0];
-  CornerPatch patch = model.patch(c);
+  CornerPatch patch = patchOf(model, c, loops);
   FaceCrossings fc = faceCrossingsOf(patch, f, (model.cells[c].pairing03 >> f) & 1);
-  const int axis = cube::faceAxis(f);
-  const auto uv = cube::otherAxes(axis);
-  auto to3d = [&](double u, double v) {
-    Vec3 x;
-    x[axis] = cube::faceSide(f);
-    x[uv[0]] = u;
-    x[uv[1]] = v;
-    return x;
-  };
   constexpr int n = kFaceLattice;
-  std::array<double, n * n> r{};
+  std::array<double, n * n> r;
+  std::array<Vec3, n * n> rg;
+  referenceFaceLattice<n>(ref, f, r, rg);
   Interval interval;
   for (int b = 0; b < n; ++b)
     for (int a = 0; a < n; ++a) {
-      Vec2 q((a + 0.5) / n, (b + 0.5) / n);
-      Vec3 x = to3d(q.x(), q.y());
-      double value = ref.value(x);
-      r[a + n * b] = value;
-      double g = ref.gradient(x).norm();
-      if (!(std::abs(value) > kMarginVoxels * g)) continue;
-      FaceRestriction fr = faceRestriction(fc, q);
-      interval.add(value > 0, fr.cornerPart, fr.sideBasis);
+      const std::size_t i = static_cast<std::size_t>(a + n * b);
+      if (!(r[i] * r[i] > kMarginVoxels * kMarginVoxels * rg[i].cwiseProduct(ref.metric).squaredNorm()))
+        continue;
+      FaceRestriction fr = faceRestriction(fc, Vec2((a + 0.5) / n, (b + 0.5) / n));
+      interval.add(r[i] > 0, fr.cornerPart, fr.sideBasis);
     }
   // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
   double num = 0, den = 0;
@@ -167,6 +345,7 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellReferen
   den += kRidge * dCentre * dCentre * std::max(1, fitCount);
   double w = -num / den;
   FaceResult out;
+  interval.finish();
   out.ok = interval.feasible();
   out.coefficient = out.ok ? interval.clamp(w) : w;
   if (!std::isfinite(out.coefficient)) out.coefficient = 0;
@@ -178,17 +357,26 @@ struct CellResult {
   bool ok = true;
 };
 
-CellResult fitCell(const Model& model, std::size_t c, const CellReference& ref) {
-  CornerPatch patch = model.patch(c);
+CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   constexpr int n = kCellLattice;
-  constexpr double h = 1.0 / n;
-  std::array<double, n * n * n> r{};
-  auto at = [](int a, int b, int d) { return a + n * (b + n * d); };
-  for (int d = 0; d < n; ++d)
-    for (int b = 0; b < n; ++b)
-      for (int a = 0; a < n; ++a)
-        r[at(a, b, d)] = ref.value(Vec3((a + 0.5) * h, (b + 0.5) * h, (d + 0.5) * h));
-  auto lattice = [&](int a, int b, int d) { return Vec3((a + 0.5) * h, (b + 0.5) * h, (d + 0.5) * h); };
+  std::array<double, n * n * n> r, patchValue, patchBasis;
+  referenceCellLattice<n>(ref, r);
+  patchCellLattice<n>(patch, patchValue, patchBasis);
+  // Neighbours along an axis for the reference gradient (central differences, one-sided at the lattice
+  // border), and 1 / (their distance).
+  std::array<int, n> below, above;
+  std::array<double, n> inverseSpan;
+  for (int i = 0; i < n; ++i) {
+    below[i] = std::max(i - 1, 0);
+    above[i] = std::min(i + 1, n - 1);
+    inverseSpan[i] = n / static_cast<double>(above[i] - below[i]);
+  }
+  constexpr std::array<int, 3> stride{1, n, n * n};
+  Vec3 meanNormal = Vec3::Zero();
+  for (int k = 0; k < patch.numCorners; ++k) meanNormal += patch.normal[k];
+  int fitAxis = 0;
+  meanNormal.cwiseAbs().maxCoeff(&fitAxis);
+  constexpr double margin2 = kMarginVoxels * kMarginVoxels;
   Interval interval;
   double num = 0, den = 0;
   int fitCount = 0;
@@ -196,37 +384,37 @@ CellResult fitCell(const Model& model, std::size_t c, const CellReference& ref) 
     for (int b = 0; b < n; ++b)
       for (int a = 0; a < n; ++a) {
         const std::array<int, 3> i{a, b, d};
-        const double value = r[at(a, b, d)];
-        Vec3 g;
+        const int idx = a + n * (b + n * d);
+        const double value = r[static_cast<std::size_t>(idx)];
+        double g2 = 0;
         for (int k = 0; k < 3; ++k) {
-          auto lo = i, hi = i;
-          if (lo[k] > 0) --lo[k];
-          if (hi[k] + 1 < n) ++hi[k];
-          g[k] = (r[at(hi[0], hi[1], hi[2])] - r[at(lo[0], lo[1], lo[2])]) / ((hi[k] - lo[k]) * h);
+          double diff = (r[static_cast<std::size_t>(idx + (above[i[k]] - i[k]) * stride[k])] -
+                         r[static_cast<std::size_t>(idx + (below[i[k]] - i[k]) * stride[k])]) *
+                        inverseSpan[i[k]] * ref.metric[k];
+          g2 += diff * diff;
         }
-        Vec3 x = lattice(a, b, d);
-        if (std::abs(value) > kMarginVoxels * g.norm()) {
-          interval.add(value > 0, patch.valueWithoutCentral(x), patch.centralBasis(x));
+        if (value * value > margin2 * g2) {
+          interval.add(value > 0, patchValue[static_cast<std::size_t>(idx)],
+                       patchBasis[static_cast<std::size_t>(idx)]);
         }
-        for (int k = 0; k < 3; ++k) {
-          if (i[k] + 1 >= n) continue;
-          auto j = i;
-          ++j[k];
-          double other = r[at(j[0], j[1], j[2])];
-          if ((value > 0) == (other > 0)) continue;
-          double t = value / (value - other);
-          Vec3 q = x;
-          q[k] += t * h;
-          double basis = patch.centralBasis(q);
-          num += patch.valueWithoutCentral(q) * basis;
-          den += basis * basis;
-          ++fitCount;
-        }
+        // Reference surface points between lattice neighbours along the axis closest to the surface normal
+        // (linear interpolation of the reference) for the least-squares fit of the central coefficient.
+        if (i[fitAxis] + 1 >= n) continue;
+        const std::size_t j = static_cast<std::size_t>(idx + stride[fitAxis]);
+        const double other = r[j];
+        if ((value > 0) == (other > 0)) continue;
+        Vec3 q((a + 0.5) / n, (b + 0.5) / n, (d + 0.5) / n);
+        q[fitAxis] += value / (value - other) / n;
+        const double basis = patch.centralBasis(q);
+        num += patch.valueWithoutCentral(q) * basis;
+        den += basis * basis;
+        ++fitCount;
       }
   CellResult out;
   const double cCentre = patch.centralBasis(Vec3(0.5, 0.5, 0.5));
   den += kRidge * cCentre * cCentre * std::max(1, fitCount);
   double w = fitCount > 0 ? -num / den : 0.0;
+  interval.finish();
   out.ok = interval.feasible();
   out.central = out.ok ? interval.clamp(w) : 0.0;
   if (!std::isfinite(out.central)) out.central = 0;
@@ -273,6 +461,17 @@ CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int
                                 double isovalue) {
   CellReference ref;
   ref.isovalue = isovalue;
+  const auto& dims = grid.geometry.dims;
+  if (cell[0] >= 1 && cell[1] >= 1 && cell[2] >= 1 && cell[0] + 2 < dims[0] && cell[1] + 2 < dims[1] &&
+      cell[2] + 2 < dims[2]) {
+    for (int k = 0; k < 4; ++k)
+      for (int j = 0; j < 4; ++j) {
+        const double* row =
+            &grid.values[static_cast<std::size_t>(grid.index(cell[0] - 1, cell[1] - 1 + j, cell[2] - 1 + k))];
+        std::copy(row, row + 4, ref.samples.begin() + 4 * (j + 4 * k));
+      }
+    return ref;
+  }
   for (int k = 0; k < 4; ++k)
     for (int j = 0; j < 4; ++j)
       for (int i = 0; i < 4; ++i)
@@ -281,10 +480,42 @@ CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int
   return ref;
 }
 
+CellReference TricubicInterpolant::at(const Vec3& world, Vec3& local) const {
+  const Vec3 index = grid_.geometry.worldToIndex(world);
+  std::array<std::int64_t, 3> cell;
+  for (int a = 0; a < 3; ++a) {
+    const std::int64_t cells = std::max<std::int64_t>(1, grid_.geometry.dims[a] - 1);
+    const double lower = std::floor(index[a]);
+    cell[a] = std::isfinite(lower)
+                  ? std::clamp<std::int64_t>(
+                        static_cast<std::int64_t>(std::clamp(lower, -1.0, static_cast<double>(cells))), 0,
+                        cells - 1)
+                  : 0;
+    local[a] = index[a] - static_cast<double>(cell[a]);
+  }
+  return tricubicReference(grid_, cell, 0.0);
+}
+
+double TricubicInterpolant::value(const Vec3& world) const {
+  Vec3 local;
+  CellReference ref = at(world, local);
+  return ref.value(local);
+}
+
+Vec3 TricubicInterpolant::gradient(const Vec3& world) const {
+  Vec3 local;
+  CellReference ref = at(world, local);
+  return ref.gradient(local).cwiseQuotient(grid_.geometry.spacing);
+}
+
 double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
                        double isovalue, Vec3& normal) {
   const auto& dims = grid.geometry.dims;
-  auto sample = [&](const std::array<std::int64_t, 3>& p) { return extendedSample(grid, p); };
+  const bool inside = point[0] >= 1 && point[1] >= 1 && point[2] >= 1 && point[0] + 2 < dims[0] &&
+                      point[1] + 2 < dims[1] && point[2] + 2 < dims[2];
+  auto sample = [&](const std::array<std::int64_t, 3>& p) {
+    return inside ? grid.at(p[0], p[1], p[2]) : extendedSample(grid, p);
+  };
   auto along = [&](int s) {
     auto p = point;
     p[axis] += s;
@@ -307,7 +538,7 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
     double t1 = static_cast<double>(b) / kBrackets, c1 = b == kBrackets ? s[2] : cubic(t1);
     if ((c0 > 0) != (c1 > 0)) {
       double lo = t0, hi = t1, flo = c0;
-      for (int it = 0; it < 60; ++it) {
+      for (int it = 0; it < 44; ++it) {  // bracket width 2^-48
         double mid = 0.5 * (lo + hi), fm = cubic(mid);
         if ((fm > 0) == (flo > 0)) {
           lo = mid;
@@ -418,15 +649,15 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
       Vec3 n = (1 - beta) * baseNormal[v] + beta * edgeDirection[v];
       model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edgeDirection[v];
     });
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, faces.size(), 64),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                        for (std::size_t i = r.begin(); i != r.end(); ++i) {
-                          if (!faceDirty[i]) continue;
-                          FaceResult fr = fitFace(model, faces[i], reference(faces[i].cell[0]));
-                          faceCoefficient[i] = fr.coefficient;
-                          faceOk[i] = fr.ok;
-                        }
-                      });
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, faces.size(), 64), [&](const tbb::blocked_range<std::size_t>& r) {
+          for (std::size_t i = r.begin(); i != r.end(); ++i) {
+            if (!faceDirty[i]) continue;
+            FaceResult fr = fitFace(model, faces[i], loops[faces[i].cell[0]], reference(faces[i].cell[0]));
+            faceCoefficient[i] = fr.coefficient;
+            faceOk[i] = fr.ok;
+          }
+        });
     for (std::size_t i = 0; i < faces.size(); ++i)
       if (faceDirty[i])
         for (int s = 0; s < faces[i].count; ++s)
@@ -436,7 +667,7 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
                         for (std::size_t c = r.begin(); c != r.end(); ++c) {
                           if (!cellDirty[c]) continue;
                           model.cells[c].central = 0;
-                          CellResult cr = fitCell(model, c, reference(c));
+                          CellResult cr = fitCell(patchOf(model, c, loops[c]), reference(c));
                           model.cells[c].central = cr.central;
                           cellOk[c] = cr.ok;
                         }

@@ -36,6 +36,10 @@ struct CellReference {
   const GridGeometry* geometry = nullptr;
   Vec3 origin = Vec3::Zero();  ///< cell origin, index coordinates
   double isovalue = 0;
+  /// Per-axis factors turning index-space gradient components into gradients per smallest grid spacing: the
+  /// sign checks measure distances in smallest voxels (spacing.minCoeff() / spacing), as countSpuriousCells
+  /// does.
+  Vec3 metric = Vec3::Ones();
   /// Samples at cell-local grid points -1..2 per axis (x fastest), extended linearly one point beyond the
   /// grid.
   std::array<double, 64> samples{};
@@ -50,6 +54,20 @@ struct CellReference {
 /// exact).
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                                 double isovalue);
+
+/// The Catmull-Rom tricubic interpolant of a dense grid as a field in world coordinates: the reference
+/// surface of PatchMethod::Fitted for sampled volumes, usable with countSpuriousCells and measureFidelity.
+/// Points outside the grid are evaluated in the nearest cell (extrapolated). The grid must outlive the field.
+class TricubicInterpolant : public ScalarField {
+ public:
+  explicit TricubicInterpolant(const DenseGrid& grid) : grid_(grid) {}
+  double value(const Vec3& world) const override;
+  Vec3 gradient(const Vec3& world) const override;
+
+ private:
+  CellReference at(const Vec3& world, Vec3& local) const;
+  const DenseGrid& grid_;
+};
 
 /// Isovertex on the grid edge from `point` (grid indices) along `axis`: the root of the Catmull-Rom cubic
 /// through the four samples along the edge's line nearest to the linear crossing, and the gradient of the
