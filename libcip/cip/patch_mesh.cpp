@@ -41,6 +41,59 @@ struct CellOutput {
   std::size_t refinedCells = 0, centreFans = 0;
 };
 
+/// Value and exact gradient (cell-local units) of a patch from its product terms (CornerPatch::terms), by the
+/// product rule over the linear factors: the same polynomial as CornerPatch::derivatives, without its
+/// Hessian.
+void valueAndGradient(const CornerPatch& patch, const Vec3& x, double& value, Vec3& gradient) {
+  std::array<PatchTerm, CornerPatch::kMaxTerms> terms;
+  const int n = patch.terms(terms);
+  std::array<double, 6> b;
+  for (int f = 0; f < 6; ++f) b[f] = CornerPatch::facePlane(f, x);
+  value = 0;
+  gradient = Vec3::Zero();
+  for (int i = 0; i < n; ++i) {
+    double v = terms[i].coefficient;
+    Vec3 g = Vec3::Zero();
+    if (terms[i].corner >= 0) {
+      const double s = patch.cornerPlane(terms[i].corner, x);
+      g = v * patch.normal[terms[i].corner];
+      v *= s;
+    }
+    for (int f = 0; f < 6; ++f) {
+      if (!((terms[i].faceSquares >> f) & 1)) continue;
+      // factor B_f^2: value b^2, gradient 2 b grad(B_f)
+      const Vec3 a = CornerPatch::facePlaneGradient(f);
+      g = g * (b[f] * b[f]) + v * (2 * b[f]) * a;
+      v *= b[f] * b[f];
+    }
+    value += v;
+    gradient += g;
+  }
+}
+
+/// Sign-configuration tables used per refined cell: crossed edges, ambiguous faces, and the loops of every
+/// (configuration, pairing) pair, computed once.
+struct ConfigTables {
+  std::array<std::uint16_t, 256> crossed;
+  std::array<std::uint8_t, 256> ambiguous;
+  std::vector<CellLoops> loops;  // [config * 64 + pairing]
+  ConfigTables() : loops(256 * 64) {
+    for (int c = 0; c < 256; ++c) {
+      const auto config = static_cast<std::uint8_t>(c);
+      crossed[c] = cube::crossedEdges(config);
+      ambiguous[c] = 0;
+      for (int f = 0; f < 6; ++f)
+        if (cube::isAmbiguousFace(config, f))
+          ambiguous[c] = static_cast<std::uint8_t>(ambiguous[c] | 1u << f);
+      for (int p = 0; p < 64; ++p) loops[c * 64 + p] = buildCellLoops(config, static_cast<std::uint8_t>(p));
+    }
+  }
+  static const ConfigTables& get() {
+    static const ConfigTables tables;
+    return tables;
+  }
+};
+
 /// Per-edge data cached within one model cell.
 struct EdgeData {
   bool known = false;
@@ -223,11 +276,13 @@ class CellMesher {
   /// bounding planes the patch has a singular zero), the gradient slightly towards the cell centre; zero if
   /// that vanishes too.
   static Vec3 patchNormal(const CornerPatch& patch, const Vec3& x) {
-    Vec3 g = patch.derivatives(x).gradient;
+    double value;
+    Vec3 g;
+    valueAndGradient(patch, x, value, g);
     const double tiny = 1e-12;
     for (double step : {1e-4, 1e-2}) {
       if (g.allFinite() && g.norm() > tiny) return g;
-      g = patch.derivatives(x + step * (Vec3(0.5, 0.5, 0.5) - x)).gradient;
+      valueAndGradient(patch, x + step * (Vec3(0.5, 0.5, 0.5) - x), value, g);
     }
     return g.allFinite() && g.norm() > tiny ? g : Vec3::Zero();
   }
@@ -254,7 +309,8 @@ class CellMesher {
     }
     if (config == 0 || config == 0xFF) return;
     ++out.refinedCells;
-    const std::uint16_t crossed = cube::crossedEdges(config);
+    const ConfigTables& tables = ConfigTables::get();
+    const std::uint16_t crossed = tables.crossed[config];
     std::array<const EdgeData*, 12> ed{};
     for (int e = 0; e < 12; ++e) {
       if (!((crossed >> e) & 1)) continue;
@@ -263,13 +319,14 @@ class CellMesher {
     }
     std::uint8_t pairing = 0;
     for (int f = 0; f < 6; ++f) {
-      if (!cube::isAmbiguousFace(config, f)) continue;
+      if (!((tables.ambiguous[config] >> f) & 1)) continue;
       std::array<double, 4> t;
       for (int k = 0; k < 4; ++k) t[k] = ed[cube::faceEdge(f, k)]->t;
       if (cutsOffDiagonal03(t, (config >> cube::faceVertex(f, 0)) & 1))
         pairing = static_cast<std::uint8_t>(pairing | 1u << f);
     }
-    const CellLoops loops = buildCellLoops(config, pairing);
+    // Pairing bits of faces that are not ambiguous are ignored by buildCellLoops, so they are always 0 here.
+    const CellLoops& loops = tables.loops[config * 64 + pairing];
     int start = 0;
     for (int l = 0; l < loops.numLoops; ++l) {
       const int n = loops.loopSize[l];
@@ -307,14 +364,16 @@ class CellMesher {
     Vec3 x = (corner + m) / k_;  // model-cell-local
     Vec3 start = x;
     for (int it = 0; it < 8; ++it) {
-      PatchDerivatives d = patch.derivatives(x);
-      double g2 = d.gradient.squaredNorm();
+      double value;
+      Vec3 gradient;
+      valueAndGradient(patch, x, value, gradient);
+      double g2 = gradient.squaredNorm();
       if (!(g2 > 0)) break;
-      x -= d.value / g2 * d.gradient;
+      x -= value / g2 * gradient;
     }
     Vec3 rel = x * k_ - corner;
     if (!x.allFinite() || rel.minCoeff() < 0 || rel.maxCoeff() > 1) x = start;
-    Vec3 grad = patch.derivatives(x).gradient;
+    Vec3 grad = patchNormal(patch, x);
     const GridGeometry& geo = model_.geometry;
     return VertexRecord{
         key, geo.indexToWorld(model_.cellOrigin(cell_) + x),
