@@ -231,6 +231,19 @@ TEST(MarchingCubes, AnisotropicSpacingConvertsNormals) {
   EXPECT_GT(normalAgreement(mesh), 0.99);
 }
 
+TEST(MarchingCubes, SameMeshWithoutPatchCoefficients) {
+  // The marching-cubes front end of the builder skips coefficient fitting; the mesh needs only isovertices
+  // and loops.
+  DenseGrid g = test::randomVolume(10, 11, true);
+  BuildOptions o;
+  Model full = buildModel(g, o);
+  o.fitCoefficients = false;
+  Model bare = buildModel(g, o);
+  TriangleMesh a = marchingCubes(full), b = marchingCubes(bare);
+  EXPECT_EQ(a.triangles, b.triangles);
+  EXPECT_EQ(a.positions, b.positions);
+}
+
 TEST(MarchingCubes, EmptyModel) {
   Model model;
   model.geometry.dims = {4, 4, 4};

@@ -100,6 +100,15 @@ TEST(PatchMesh, ExactSphereIsClosedAndOnTheSphere) {
     if (mesh.normals[v].dot(mesh.positions[v].normalized()) > 0.9) ++outward;
   }
   EXPECT_GT(outward, mesh.positions.size() * 99 / 100);
+  // Normals are the world-space patch gradients of CornerPatch::derivatives wherever those do not vanish.
+  for (std::size_t v = 0; v < mesh.positions.size(); ++v) {
+    std::size_t c = mesh.vertexCell[v];
+    Vec3 local = model.geometry.worldToIndex(mesh.positions[v]) - model.cellOrigin(c);
+    Vec3 g = model.patch(c).derivatives(local).gradient;
+    if (g.norm() < 1e-9) continue;
+    Vec3 expected = g.cwiseQuotient(model.geometry.spacing).normalized();
+    EXPECT_LT((mesh.normals[v] - expected).norm(), 1e-9) << "vertex " << v;
+  }
   // Each triangle lies in the cell it was made in.
   ASSERT_EQ(mesh.triangleCell.size(), mesh.triangles.size());
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
