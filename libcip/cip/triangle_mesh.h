@@ -17,10 +17,9 @@ namespace cip {
 struct TriangleMesh {
   std::vector<Vec3> positions;  ///< world coordinates
   std::vector<Vec3> normals;    ///< unit normals per vertex (world), or empty when unknown
-  std::vector<std::array<std::uint32_t, 3>>
-      triangles;  ///< counter-clockwise seen from the side normals point to
-  /// Optional: per triangle, the index into Model::cells of the cell it was made in (empty when not
-  /// recorded).
+  /// Vertex indices, counter-clockwise seen from the side the normals point to.
+  std::vector<std::array<std::uint32_t, 3>> triangles;
+  /// Optional: per triangle, the index into Model::cells of the cell it was made in (else empty).
   std::vector<std::uint32_t> triangleCell;
   /// Optional: per vertex, the index into Model::cells of the cell whose patch placed it (patch meshes only).
   std::vector<std::uint32_t> vertexCell;
