@@ -123,11 +123,15 @@ void extraction(const std::string& csvPath, bool quick, const std::string& share
       cip::BuildOptions o;
       o.isovalue = c.iso;
       o.threads = threads;
-      cip::Model model;
-      double tModel = timeIt([&] { model = cip::buildModel(grid, o); });
-      std::size_t modelBytes = cip::serializeModel(model).size();
-      csv.row(c.name, grid.values.size(), cells, "cip-patches", threads, tModel, cells / tModel * 1e-6,
-              model.cells.size(), modelBytes, c.inputBytes);
+      for (cip::PatchMethod method : {cip::PatchMethod::Fitted, cip::PatchMethod::Paper}) {
+        o.method = method;
+        cip::Model model;
+        double tModel = timeIt([&] { model = cip::buildModel(grid, o); });
+        std::size_t modelBytes = cip::serializeModel(model).size();
+        csv.row(c.name, grid.values.size(), cells, std::string("cip-patches-") + cip::toString(method), threads, tModel,
+                cells / tModel * 1e-6, model.cells.size(), modelBytes, c.inputBytes);
+      }
+      o.method = cip::PatchMethod::Paper;
       cip::TriangleMesh mc;
       o.fitCoefficients = false;
       double tMc = timeIt([&] {
@@ -176,15 +180,17 @@ void fidelity(const std::string& csvPath, bool quick) {
                 patches ? f.curvatureError.mean : 0.0, patches ? f.curvatureError.p99 : 0.0, patches ? spurious : -1,
                 patches ? cont.maxGap : -1.0, patches ? cont.maxAngle * 57.29577951308232 : -1.0);
       };
-      for (cip::NormalMode mode : {cip::NormalMode::Edge, cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
-        cip::BuildOptions o;
-        o.isovalue = iso;
-        o.normals = mode;
-        o.exactField = field.get();
-        cip::Model m = cip::buildModel(grid, o);
-        report(std::string("patch-") + toString(m.method) + "-" + cip::toString(mode), m, cip::samplePatchSurface(m, lines),
-               true);
-      }
+      for (cip::PatchMethod method : {cip::PatchMethod::Fitted, cip::PatchMethod::Paper})
+        for (cip::NormalMode mode : {cip::NormalMode::Edge, cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
+          cip::BuildOptions o;
+          o.isovalue = iso;
+          o.normals = mode;
+          o.method = method;
+          o.exactField = field.get();
+          cip::Model m = cip::buildModel(grid, o);
+          report(std::string("patch-") + toString(m.method) + "-" + cip::toString(mode), m,
+                 cip::samplePatchSurface(m, lines), true);
+        }
       // Marching cubes on linearly interpolated isovertices (the usual method), and on exact ones.
       for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
         cip::BuildOptions o;

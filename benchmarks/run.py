@@ -261,15 +261,15 @@ def table(rows, fields, fmt=None):
 
 def ratios(extraction):
     """Extraction time of each peer divided by cip's patch model time, same case and thread count."""
-    base = {(r["case"], r["threads"]): float(r["seconds"]) for r in extraction if r["method"] == "cip-patches"}
+    base = {(r["case"], r["threads"]): float(r["seconds"]) for r in extraction if r["method"] == "cip-patches-fitted"}
     rows = []
     for r in extraction:
-        if r["method"] == "cip-patches":
+        if r["method"] == "cip-patches-fitted":
             continue
         b = base.get((r["case"], r["threads"]))
         if b:
             rows.append({"case": r["case"], "threads": r["threads"], "peer": r["method"],
-                         "peer_time_over_cip_patches": float(r["seconds"]) / b})
+                         "peer_time_over_cip_fitted": float(r["seconds"]) / b})
     return rows
 
 
@@ -323,7 +323,7 @@ def main():
 
     size_rows = []
     for r in extraction:
-        if r["method"] == "cip-patches" and int(r["threads"]) == 1:
+        if r["method"] == "cip-patches-fitted" and int(r["threads"]) == 1:
             mc = next(x for x in extraction if x["case"] == r["case"] and x["method"] == "cip-marching-cubes")
             size_rows.append({"case": r["case"], "input_bytes": r["input_bytes"], "model_bytes": r["output_bytes"],
                               "mc_ply_bytes": mc["output_bytes"],
@@ -338,14 +338,15 @@ def main():
           "Every figure below comes from runs made side by side in that invocation; the CSV files beside this report "
           "hold all of them. Times are wall-clock medians of up to three runs (one when a run takes over a second).",
           "", "## Extraction", "",
-          "cip-patches: the corner-patch model (`buildModel`, default method). cip-marching-cubes: the project's "
+          "cip-patches-fitted / -paper: the corner-patch model (`buildModel`; fitted is extract's default, paper the "
+          "corner I-patch paper's construction, see docs/method.md). cip-marching-cubes: the project's "
           "marching cubes (isovertices and loops, then triangulation; `extract --mc-mesh`). "
           "openvdb-volumeToMesh: OpenVDB's mesher on the same samples (all voxels active). " + vtk_note, "",
           table(extraction, ["case", "method", "threads", "seconds", "mcells_per_s", "output_count"],
                 {"seconds": "%.4f", "mcells_per_s": "%.2f"}), "",
-          "Ratios (peer time / cip-patches time, same case and threads; below 1 means the peer is faster):", "",
-          table(ratio_rows, ["case", "threads", "peer", "peer_time_over_cip_patches"],
-                {"peer_time_over_cip_patches": "%.2f"}), "",
+          "Ratios (peer time / cip-patches-fitted time, same case and threads; below 1 means the peer is faster):", "",
+          table(ratio_rows, ["case", "threads", "peer", "peer_time_over_cip_fitted"],
+                {"peer_time_over_cip_fitted": "%.2f"}), "",
           "## Size", "", "Model file (`.cip`) against the marching-cubes mesh (binary PLY, indexed, float positions and "
           "normals) and the input volume (analytic fields counted as float32 volumes).", "",
           table(size_rows, list(size_rows[0].keys()), {"model_over_mc": "%.2f", "model_over_input": "%.2f"}), "",

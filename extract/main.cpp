@@ -25,7 +25,7 @@ double secondsSince(Clock::time_point t) { return std::chrono::duration<double>(
 
 struct Options {
   std::string input, output, mcMesh, patchMesh, statsJson;
-  std::string normals = "gradient", central = "zero", method = "paper";
+  std::string normals = "gradient", central = "zero", method = "fitted";
   std::optional<double> iso;
   int resolution = 64, subdiv = 4, threads = 0;
   bool quiet = false, skipNonFinite = false;
@@ -169,11 +169,11 @@ int main(int argc, char** argv) {
                                    "the field's own value for analytic fields; required otherwise)");
   app.add_option("--normals", opt.normals, "corner-plane normals: edge, gradient (default) or exact (analytic only)")
       ->check(CLI::IsMember({"edge", "gradient", "exact"}));
-  app.add_option("--central", opt.central, "central coefficient: zero (default) or interior (eq. 6 at a reference "
-                                           "surface point inside the cell)")
+  app.add_option("--central", opt.central, "paper method: central coefficient zero (default) or interior (eq. 6 at "
+                                           "a reference surface point inside the cell); fitted chooses its own")
       ->check(CLI::IsMember({"zero", "interior"}));
-  app.add_option("--method", opt.method, "patch coefficients: paper (the corner I-patch paper's rules) or fitted "
-                                         "(see docs/method.md)")
+  app.add_option("--method", opt.method, "patch coefficients: fitted (default: no spurious sheets, see docs/method.md) "
+                                         "or paper (the corner I-patch paper's rules)")
       ->check(CLI::IsMember({"paper", "fitted"}));
   app.add_option("--resolution", opt.resolution, "analytic fields: cells per axis over [-1,1]^3 (default 64)")
       ->check(CLI::Range(1, 4096));
