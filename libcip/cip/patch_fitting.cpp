@@ -20,12 +20,21 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 /// Blend levels of a corner-plane normal: n = normalize((1 - beta) n_gradient + beta e_edge).
 constexpr std::array<double, 5> kBlend{0.0, 0.25, 0.5, 0.75, 1.0};
 constexpr int kMaxLevel = static_cast<int>(kBlend.size()) - 1;
-/// Samples per axis of the sign checks: face lattice (kFaceLattice^2) and cell lattice (kCellLattice^3), at
-/// (a + 1/2) / n.
+/// Samples per axis of the sign checks: face lattice (kFaceLattice^2) and cell lattice (kCellLattice^3).
 constexpr int kFaceLattice = 7, kCellLattice = 6;
 /// Samples closer than this to the reference surface (first-order estimate |f| / |grad f|, voxels) are not
 /// checked.
 constexpr double kMarginVoxels = 0.35;
+/// Lattice coordinates of the checks: n equally spaced points from kLatticeInset / (n - 1 + 2 kLatticeInset)
+/// to its mirror image, i.e. closer to the faces than (a + 1/2) / n, where the central term is strongest far
+/// from the bounding planes and wrong signs appear first.
+constexpr double kLatticeInset = 0.25;
+constexpr double latticeStep(int n) {
+  return 1.0 / (n - 1 + 2 * kLatticeInset);
+}
+constexpr double latticeCoord(int i, int n) {
+  return (i + kLatticeInset) * latticeStep(n);
+}
 /// Weight of the ridge term of the coefficient fits (relative to a fit point at the cell or face centre).
 constexpr double kRidge = 1e-3;
 
@@ -102,7 +111,7 @@ struct Interval {
   }
 };
 
-/// Reference values at the cell lattice ((a + 1/2) / n per axis, index a + n (b + n d)). The tricubic
+/// Reference values at the cell lattice (latticeCoord per axis, index a + n (b + n d)). The tricubic
 /// interpolant is contracted one axis at a time (the weights are the same on every axis).
 template <int n>
 void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n>& out) {
@@ -111,11 +120,11 @@ void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n
       for (int b = 0; b < n; ++b)
         for (int a = 0; a < n; ++a)
           out[static_cast<std::size_t>(a + n * (b + n * d))] =
-              ref.value(Vec3((a + 0.5) / n, (b + 0.5) / n, (d + 0.5) / n));
+              ref.value(Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)));
     return;
   }
   double w[n][4];
-  for (int i = 0; i < n; ++i) catmullRom((i + 0.5) / n, w[i], nullptr);
+  for (int i = 0; i < n; ++i) catmullRom(latticeCoord(i, n), w[i], nullptr);
   double ax[n][16], bxy[n * n][4];
   for (int a = 0; a < n; ++a)
     for (int jk = 0; jk < 16; ++jk) {
@@ -134,7 +143,7 @@ void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n
                                                       ref.isovalue;
 }
 
-/// Reference values and gradients on face f at ((a + 1/2) / n, (b + 1/2) / n) in the face frame (index a + n
+/// Reference values and gradients on face f at the lattice coordinates in the face frame (index a + n
 /// b).
 template <int n>
 void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n * n>& value,
@@ -146,8 +155,8 @@ void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n 
       for (int a = 0; a < n; ++a) {
         Vec3 x;
         x[axis] = side;
-        x[uv[0]] = (a + 0.5) / n;
-        x[uv[1]] = (b + 0.5) / n;
+        x[uv[0]] = latticeCoord(a, n);
+        x[uv[1]] = latticeCoord(b, n);
         value[static_cast<std::size_t>(a + n * b)] = ref.value(x);
         gradient[static_cast<std::size_t>(a + n * b)] = ref.gradient(x);
       }
@@ -170,7 +179,7 @@ void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n 
           dNode[side][0] * at(0) + dNode[side][1] * at(1) + dNode[side][2] * at(2) + dNode[side][3] * at(3);
     }
   double w[n][4], dw[n][4];
-  for (int i = 0; i < n; ++i) catmullRom((i + 0.5) / n, w[i], dw[i]);
+  for (int i = 0; i < n; ++i) catmullRom(latticeCoord(i, n), w[i], dw[i]);
   double a0[n][4], ad[n][4], a1[n][4];
   for (int a = 0; a < n; ++a)
     for (int jb = 0; jb < 4; ++jb) {
@@ -208,7 +217,7 @@ void patchCellLattice(const CornerPatch& patch, std::array<double, n * n * n>& v
   // plane).
   double t[n], q[4][n];
   for (int i = 0; i < n; ++i) {
-    t[i] = (i + 0.5) / n;
+    t[i] = latticeCoord(i, n);
     q[0][i] = 1;
     q[1][i] = t[i] * t[i];
     q[2][i] = (1 - t[i]) * (1 - t[i]);
@@ -307,7 +316,7 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& 
       const std::size_t i = static_cast<std::size_t>(a + n * b);
       if (!(r[i] * r[i] > kMarginVoxels * kMarginVoxels * rg[i].cwiseProduct(ref.metric).squaredNorm()))
         continue;
-      FaceRestriction fr = faceRestriction(fc, Vec2((a + 0.5) / n, (b + 0.5) / n));
+      FaceRestriction fr = faceRestriction(fc, Vec2(latticeCoord(a, n), latticeCoord(b, n)));
       interval.add(r[i] > 0, fr.cornerPart, fr.sideBasis);
     }
   // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
@@ -323,9 +332,9 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& 
   };
   for (int b = 0; b < n; ++b)
     for (int a = 0; a < n; ++a) {
-      Vec2 q((a + 0.5) / n, (b + 0.5) / n);
-      if (a + 1 < n) addFit(q, r[a + n * b], Vec2((a + 1.5) / n, q.y()), r[a + 1 + n * b]);
-      if (b + 1 < n) addFit(q, r[a + n * b], Vec2(q.x(), (b + 1.5) / n), r[a + n * (b + 1)]);
+      Vec2 q(latticeCoord(a, n), latticeCoord(b, n));
+      if (a + 1 < n) addFit(q, r[a + n * b], Vec2(latticeCoord(a + 1, n), q.y()), r[a + 1 + n * b]);
+      if (b + 1 < n) addFit(q, r[a + n * b], Vec2(q.x(), latticeCoord(b + 1, n)), r[a + n * (b + 1)]);
     }
   if (fitCount == 0) {
     // The reference curve passes between the samples (close to a face vertex): use the side points instead.
@@ -369,7 +378,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   for (int i = 0; i < n; ++i) {
     below[i] = std::max(i - 1, 0);
     above[i] = std::min(i + 1, n - 1);
-    inverseSpan[i] = n / static_cast<double>(above[i] - below[i]);
+    inverseSpan[i] = 1.0 / (latticeStep(n) * (above[i] - below[i]));
   }
   constexpr std::array<int, 3> stride{1, n, n * n};
   Vec3 meanNormal = Vec3::Zero();
@@ -403,8 +412,8 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
         const std::size_t j = static_cast<std::size_t>(idx + stride[fitAxis]);
         const double other = r[j];
         if ((value > 0) == (other > 0)) continue;
-        Vec3 q((a + 0.5) / n, (b + 0.5) / n, (d + 0.5) / n);
-        q[fitAxis] += value / (value - other) / n;
+        Vec3 q(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n));
+        q[fitAxis] += value / (value - other) * latticeStep(n);
         const double basis = patch.centralBasis(q);
         num += patch.valueWithoutCentral(q) * basis;
         den += basis * basis;
