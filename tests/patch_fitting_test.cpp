@@ -111,7 +111,7 @@ TEST(CubicEdgeVertex, ExactRootAndGradientOfAQuadraticField) {
 
 // Bricks sharing a plane of points: isovertices, faces and cells at the brick border are decided once, so the
 // joins stay continuous. The tricubic reference is extended linearly at brick borders (no stencil across
-// bricks): at N = 24 that keeps zero spurious cells; at N = 16 it left 8 near the border (docs/method.md).
+// bricks); the sign checks still hold there (docs/method.md).
 TEST(FittedPatches, BricksJoinContinuously) {
   auto field = makeAnalyticField("gyroid");
   DenseGrid g = sampleField(*field, 24, "gyroid");
