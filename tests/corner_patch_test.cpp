@@ -73,7 +73,9 @@ TEST(CornerPatch, AllConfigurationsVanishAtIsoverticesInterpolateSidesAndFollowC
             size += std::abs(r.cornerPart * r.sideBasis);
             // And the cell's function agrees with the face restriction's sign there.
             double cellValue = p.value(facePointToCell(f, q));
-            if (std::abs(residual) > 1e-12) EXPECT_EQ(cellValue > 0, residual > 0);
+            if (std::abs(residual) > 1e-12) {
+              EXPECT_EQ(cellValue > 0, residual > 0);
+            }
           }
           EXPECT_NEAR(normal, 0.0, 1e-12 * (size + 1e-12));
         }

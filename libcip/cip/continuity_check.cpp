@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "cip/bisection.h"
 #include "cip/cube_topology.h"
 
 namespace cip {
@@ -42,17 +43,8 @@ ContinuityStats measureContinuity(const Model& m, int kSamples) {
           double ga = pa.derivatives(onA(u, v)).gradient.norm();
           if (std::abs(fa) > 1e-9 * ga && (fa > 0) != (fb > 0)) ++s.signDisagreements;
           if ((fa > 0) != (prevF > 0)) {
-            double lo = prevV, hi = v, flo = prevF;
-            for (int it = 0; it < 80; ++it) {
-              double mid = 0.5 * (lo + hi), fm = pa.value(onA(u, mid));
-              if ((fm > 0) == (flo > 0)) {
-                lo = mid;
-                flo = fm;
-              } else {
-                hi = mid;
-              }
-            }
-            Vec3 x = onA(u, 0.5 * (lo + hi));
+            Vec3 x =
+                onA(u, bisectSignChange([&](double t) { return pa.value(onA(u, t)); }, prevV, v, prevF, 80));
             PatchDerivatives da = pa.derivatives(x), db = pb.derivatives(toB(x));
             if (da.gradient.norm() > 0 && db.gradient.norm() > 0) {
               s.maxGap = std::max(s.maxGap, std::abs(db.value) / db.gradient.norm());

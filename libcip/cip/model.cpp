@@ -6,17 +6,20 @@ namespace cip {
 
 const char* toString(PatchMethod method) {
   switch (method) {
-    case PatchMethod::Paper: return "paper";
-    case PatchMethod::Fitted: return "fitted";
+    case PatchMethod::Paper:
+      return "paper";
+    case PatchMethod::Fitted:
+      return "fitted";
   }
   return "unknown";
 }
 
-CellLoops Model::loops(std::size_t c) const { return buildCellLoops(cells[c].config, cells[c].pairing03); }
+CellLoops Model::loops(std::size_t c) const {
+  return buildCellLoops(cells[c].config, cells[c].pairing03);
+}
 
-CornerPatch Model::patch(std::size_t c) const {
+CornerPatch Model::patch(std::size_t c, const CellLoops& l) const {
   const ModelCell& cell = cells[c];
-  CellLoops l = loops(c);
   CornerPatch p;
   p.numCorners = cell.numCorners();
   Vec3 origin = cellOrigin(c);
@@ -40,8 +43,9 @@ std::int64_t Model::findCell(std::int64_t i, std::int64_t j, std::int64_t k) con
   std::array<std::uint32_t, 3> target{static_cast<std::uint32_t>(k), static_cast<std::uint32_t>(j),
                                       static_cast<std::uint32_t>(i)};
   if (i < 0 || j < 0 || k < 0) return -1;
-  auto it = std::lower_bound(cells.begin(), cells.end(), target,
-                             [&](const ModelCell& c, const std::array<std::uint32_t, 3>& t) { return key(c.index) < t; });
+  auto it = std::lower_bound(
+      cells.begin(), cells.end(), target,
+      [&](const ModelCell& c, const std::array<std::uint32_t, 3>& t) { return key(c.index) < t; });
   if (it == cells.end() || key(it->index) != target) return -1;
   return it - cells.begin();
 }

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <mutex>
 
+#include "cip/bisection.h"
 #include "cip/cube_topology.h"
 #include "cip/error.h"
 #include "cip/patch_coefficients.h"
@@ -44,7 +45,9 @@ struct Indexer {
   }
 };
 
-Vec3 axisVector(int axis) { return Vec3::Unit(axis); }
+Vec3 axisVector(int axis) {
+  return Vec3::Unit(axis);
+}
 
 /// Central-difference gradient (index space) at a brick-local grid point; one-sided at the brick border.
 Vec3 gridGradient(const DenseGrid& g, std::int64_t i, std::int64_t j, std::int64_t k) {
@@ -96,17 +99,8 @@ bool interiorPoint(const CornerPatch& patch, const std::function<double(const Ve
   for (int s = 1; s <= kSteps; ++s) {
     double cs = smin + (smax - smin) * s / kSteps, cf = ref(centre + cs * dir);
     if ((prevF > 0) != (cf > 0)) {
-      double lo = prevS, hi = cs, flo = prevF;
-      for (int it = 0; it < 60; ++it) {
-        double mid = 0.5 * (lo + hi), fm = ref(centre + mid * dir);
-        if ((fm > 0) == (flo > 0)) {
-          lo = mid;
-          flo = fm;
-        } else {
-          hi = mid;
-        }
-      }
-      double root = 0.5 * (lo + hi);
+      double root =
+          bisectSignChange([&](double along) { return ref(centre + along * dir); }, prevS, cs, prevF);
       if (std::abs(root) < best) {
         best = std::abs(root);
         out = centre + root * dir;
@@ -177,8 +171,8 @@ Model buildModel(const DenseGrid& grid, const BuildOptions& options) {
   return buildModel(grid.geometry, {brick}, options, grid.description);
 }
 
-Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bricks, const BuildOptions& options,
-                 const std::string& source) {
+Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
+                 const BuildOptions& options, const std::string& source) {
   if (options.normals == NormalMode::Exact && !options.exactField) {
     throw Error("exact normals need an analytic field; use --normals gradient or edge for sampled volumes");
   }
@@ -212,37 +206,40 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
       if (ny <= 0 || nz <= 0 || b.cellEnd[0] <= b.cellBegin[0]) continue;
       std::vector<std::vector<CellRef>> rowCells(static_cast<std::size_t>(ny * nz));
       std::vector<std::vector<EdgeRef>> rowEdges(rowCells.size());
-      tbb::parallel_for(tbb::blocked_range<std::int64_t>(0, ny * nz), [&](const tbb::blocked_range<std::int64_t>& r) {
-        for (std::int64_t row = r.begin(); row != r.end(); ++row) {
-          std::int64_t j = b.cellBegin[1] + row % ny, k = b.cellBegin[2] + row / ny;
-          auto& rc = rowCells[row];
-          auto& re = rowEdges[row];
-          for (std::int64_t i = b.cellBegin[0]; i < b.cellEnd[0]; ++i) {
-            bool nonFinite;
-            std::uint8_t config = cellConfig(g, i, j, k, iso, nonFinite);
-            if (nonFinite) {
-              if (!options.skipNonFinite) {
-                std::lock_guard<std::mutex> lock(badMutex);
-                if (!badValue) badAt = {i + b.offset[0], j + b.offset[1], k + b.offset[2]};
-                badValue = true;
+      tbb::parallel_for(
+          tbb::blocked_range<std::int64_t>(0, ny * nz), [&](const tbb::blocked_range<std::int64_t>& r) {
+            for (std::int64_t row = r.begin(); row != r.end(); ++row) {
+              std::int64_t j = b.cellBegin[1] + row % ny, k = b.cellBegin[2] + row / ny;
+              auto& rc = rowCells[row];
+              auto& re = rowEdges[row];
+              for (std::int64_t i = b.cellBegin[0]; i < b.cellEnd[0]; ++i) {
+                bool nonFinite;
+                std::uint8_t config = cellConfig(g, i, j, k, iso, nonFinite);
+                if (nonFinite) {
+                  if (!options.skipNonFinite) {
+                    std::lock_guard<std::mutex> lock(badMutex);
+                    if (!badValue) badAt = {i + b.offset[0], j + b.offset[1], k + b.offset[2]};
+                    badValue = true;
+                  }
+                  continue;
+                }
+                if (config == 0 || config == 0xFF) continue;
+                std::int64_t gi = i + b.offset[0], gj = j + b.offset[1], gk = k + b.offset[2];
+                rc.push_back(CellRef{global.point(gi, gj, gk), bi, config});
+                std::uint16_t crossed = cube::crossedEdges(config);
+                for (int e = 0; e < 12; ++e) {
+                  if (!((crossed >> e) & 1)) continue;
+                  auto c = cube::vertexCoords(cube::edgeVertex(e, 0));
+                  re.push_back(
+                      EdgeRef{global.point(gi + c[0], gj + c[1], gk + c[2]) * 3 + cube::edgeAxis(e), bi});
+                }
               }
-              continue;
+              std::sort(re.begin(), re.end());
+              re.erase(std::unique(re.begin(), re.end(), [](auto& x, auto& y) { return x.key == y.key; }),
+                       re.end());
+              progress.set(0.3 * static_cast<double>(++rowsDone) / static_cast<double>(totalRows));
             }
-            if (config == 0 || config == 0xFF) continue;
-            std::int64_t gi = i + b.offset[0], gj = j + b.offset[1], gk = k + b.offset[2];
-            rc.push_back(CellRef{global.point(gi, gj, gk), bi, config});
-            std::uint16_t crossed = cube::crossedEdges(config);
-            for (int e = 0; e < 12; ++e) {
-              if (!((crossed >> e) & 1)) continue;
-              auto c = cube::vertexCoords(cube::edgeVertex(e, 0));
-              re.push_back(EdgeRef{global.point(gi + c[0], gj + c[1], gk + c[2]) * 3 + cube::edgeAxis(e), bi});
-            }
-          }
-          std::sort(re.begin(), re.end());
-          re.erase(std::unique(re.begin(), re.end(), [](auto& x, auto& y) { return x.key == y.key; }), re.end());
-          progress.set(0.3 * static_cast<double>(++rowsDone) / static_cast<double>(totalRows));
-        }
-      });
+          });
       for (auto& rc : rowCells) cells.insert(cells.end(), rc.begin(), rc.end());
       for (auto& re : rowEdges) edges.insert(edges.end(), re.begin(), re.end());
     }
@@ -255,44 +252,46 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
     tbb::parallel_sort(edges.begin(), edges.end());
     edges.erase(std::unique(edges.begin(), edges.end(), [](auto& x, auto& y) { return x.key == y.key; }),
                 edges.end());
-    if (edges.size() > std::numeric_limits<std::uint32_t>::max()) throw Error("too many isovertices for one model");
+    if (edges.size() > std::numeric_limits<std::uint32_t>::max())
+      throw Error("too many isovertices for one model");
     model.vertices.resize(edges.size());
     const Vec3 spacing = geometry.spacing;
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, edges.size()), [&](const tbb::blocked_range<std::size_t>& r) {
-      for (std::size_t n = r.begin(); n != r.end(); ++n) {
-        const GridBrick& b = bricks[edges[n].brick];
-        const DenseGrid& g = *b.grid;
-        int axis = static_cast<int>(edges[n].key % 3);
-        auto gp = global.coords(edges[n].key / 3);
-        std::array<std::int64_t, 3> lp{gp[0] - b.offset[0], gp[1] - b.offset[1], gp[2] - b.offset[2]};
-        auto lq = lp;
-        lq[axis] += 1;
-        double v0 = g.at(lp[0], lp[1], lp[2]), v1 = g.at(lq[0], lq[1], lq[2]);
-        Vec3 towardsPositive = axisVector(axis) * (v1 > iso ? 1.0 : -1.0);
-        Vec3 start(static_cast<double>(gp[0]), static_cast<double>(gp[1]), static_cast<double>(gp[2]));
-        IsoVertex& vx = model.vertices[n];
-        double t;
-        if (options.normals == NormalMode::Exact) {
-          Vec3 wa = geometry.indexToWorld(start), wb = geometry.indexToWorld(start + axisVector(axis));
-          t = exactCrossing(*options.exactField, wa, wb, iso);
-          Vec3 gradWorld = options.exactField->gradient(wa + t * (wb - wa));
-          vx.normal = orientCornerNormal(gradWorld.cwiseProduct(spacing), towardsPositive);
-        } else {
-          t = linearCrossing(v0, v1, iso);
-          if (options.method == PatchMethod::Fitted && options.normals == NormalMode::Gradient) {
-            t = cubicEdgeVertex(g, lp, axis, iso, vx.normal);
-          } else if (options.normals == NormalMode::Edge) {
-            vx.normal = towardsPositive;
-          } else {
-            Vec3 g0 = gridGradient(g, lp[0], lp[1], lp[2]), g1 = gridGradient(g, lq[0], lq[1], lq[2]);
-            vx.normal = orientCornerNormal((1 - t) * g0 + t * g1, towardsPositive);
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, edges.size()), [&](const tbb::blocked_range<std::size_t>& r) {
+          for (std::size_t n = r.begin(); n != r.end(); ++n) {
+            const GridBrick& b = bricks[edges[n].brick];
+            const DenseGrid& g = *b.grid;
+            int axis = static_cast<int>(edges[n].key % 3);
+            auto gp = global.coords(edges[n].key / 3);
+            std::array<std::int64_t, 3> lp{gp[0] - b.offset[0], gp[1] - b.offset[1], gp[2] - b.offset[2]};
+            auto lq = lp;
+            lq[axis] += 1;
+            double v0 = g.at(lp[0], lp[1], lp[2]), v1 = g.at(lq[0], lq[1], lq[2]);
+            Vec3 towardsPositive = axisVector(axis) * (v1 > iso ? 1.0 : -1.0);
+            Vec3 start(static_cast<double>(gp[0]), static_cast<double>(gp[1]), static_cast<double>(gp[2]));
+            IsoVertex& vx = model.vertices[n];
+            double t;
+            if (options.normals == NormalMode::Exact) {
+              Vec3 wa = geometry.indexToWorld(start), wb = geometry.indexToWorld(start + axisVector(axis));
+              t = exactCrossing(*options.exactField, wa, wb, iso);
+              Vec3 gradWorld = options.exactField->gradient(wa + t * (wb - wa));
+              vx.normal = orientCornerNormal(gradWorld.cwiseProduct(spacing), towardsPositive);
+            } else {
+              t = linearCrossing(v0, v1, iso);
+              if (options.method == PatchMethod::Fitted && options.normals == NormalMode::Gradient) {
+                t = cubicEdgeVertex(g, lp, axis, iso, vx.normal);
+              } else if (options.normals == NormalMode::Edge) {
+                vx.normal = towardsPositive;
+              } else {
+                Vec3 g0 = gridGradient(g, lp[0], lp[1], lp[2]), g1 = gridGradient(g, lq[0], lq[1], lq[2]);
+                vx.normal = orientCornerNormal((1 - t) * g0 + t * g1, towardsPositive);
+              }
+            }
+            vx.position = start;
+            vx.position[axis] += t;
+            vx.weight = 1.0;
           }
-        }
-        vx.position = start;
-        vx.position[axis] += t;
-        vx.weight = 1.0;
-      }
-    });
+        });
     progress.set(0.5);
     // Phase C: cell patches, in cell-key order.
     std::stable_sort(cells.begin(), cells.end());
@@ -301,68 +300,76 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
     for (std::size_t c = 0; c < cells.size(); ++c) {
       model.cells[c].firstCorner = static_cast<std::uint32_t>(cornerTotal);
       cornerTotal += static_cast<std::uint64_t>(__builtin_popcount(cube::crossedEdges(cells[c].config)));
-      if (cornerTotal > std::numeric_limits<std::uint32_t>::max()) throw Error("too many corners for one model");
+      if (cornerTotal > std::numeric_limits<std::uint32_t>::max())
+        throw Error("too many corners for one model");
     }
     model.corners.resize(cornerTotal);
     std::atomic<std::size_t> cellsDone{0};
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cells.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
-      for (std::size_t c = r.begin(); c != r.end(); ++c) {
-        const CellRef& ref = cells[c];
-        auto gc = global.coords(ref.key);
-        Vec3 origin(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
-        std::array<IsoVertex, 12> local;
-        std::array<std::uint32_t, 12> vertexIndex{};
-        std::uint16_t crossed = cube::crossedEdges(ref.config);
-        for (int e = 0; e < 12; ++e) {
-          if (!((crossed >> e) & 1)) continue;
-          auto vc = cube::vertexCoords(cube::edgeVertex(e, 0));
-          Key key = global.point(gc[0] + vc[0], gc[1] + vc[1], gc[2] + vc[2]) * 3 + cube::edgeAxis(e);
-          auto it = std::lower_bound(edges.begin(), edges.end(), key,
-                                     [](const EdgeRef& x, Key k) { return x.key < k; });
-          vertexIndex[e] = static_cast<std::uint32_t>(it - edges.begin());
-          local[e] = model.vertices[vertexIndex[e]];
-          local[e].position -= origin;
-        }
-        ModelCell& mc = model.cells[c];
-        CellLoops loops;
-        // PatchMethod::Fitted replaces the coefficients afterwards (fitModelPatches).
-        const bool paperCoefficients = options.fitCoefficients && options.method == PatchMethod::Paper;
-        CornerPatch patch = buildCellPatch(ref.config, local, &mc.pairing03, &loops, paperCoefficients);
-        if (paperCoefficients && options.central == CentralRule::Interior) {
-          Vec3 p;
-          std::function<double(const Vec3&)> reference;
-          if (options.exactField) {
-            reference = [&](const Vec3& x) { return options.exactField->value(geometry.indexToWorld(origin + x)) - iso; };
-          } else {
-            const GridBrick& b = bricks[ref.brick];
-            std::array<double, 8> v;
-            for (int k = 0; k < 8; ++k) {
-              auto vc = cube::vertexCoords(k);
-              v[k] = b.grid->at(gc[0] - b.offset[0] + vc[0], gc[1] - b.offset[1] + vc[1], gc[2] - b.offset[2] + vc[2]);
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, cells.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+          for (std::size_t c = r.begin(); c != r.end(); ++c) {
+            const CellRef& ref = cells[c];
+            auto gc = global.coords(ref.key);
+            Vec3 origin(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
+            std::array<IsoVertex, 12> local;
+            std::array<std::uint32_t, 12> vertexIndex{};
+            std::uint16_t crossed = cube::crossedEdges(ref.config);
+            for (int e = 0; e < 12; ++e) {
+              if (!((crossed >> e) & 1)) continue;
+              auto vc = cube::vertexCoords(cube::edgeVertex(e, 0));
+              Key key = global.point(gc[0] + vc[0], gc[1] + vc[1], gc[2] + vc[2]) * 3 + cube::edgeAxis(e);
+              auto it = std::lower_bound(edges.begin(), edges.end(), key,
+                                         [](const EdgeRef& x, Key k) { return x.key < k; });
+              vertexIndex[e] = static_cast<std::uint32_t>(it - edges.begin());
+              local[e] = model.vertices[vertexIndex[e]];
+              local[e].position -= origin;
             }
-            reference = [v, iso](const Vec3& x) {
-              double sum = 0;
-              for (int k = 0; k < 8; ++k) {
-                auto vc = cube::vertexCoords(k);
-                sum += v[k] * (vc[0] ? x[0] : 1 - x[0]) * (vc[1] ? x[1] : 1 - x[1]) * (vc[2] ? x[2] : 1 - x[2]);
+            ModelCell& mc = model.cells[c];
+            CellLoops loops;
+            // PatchMethod::Fitted replaces the coefficients afterwards (fitModelPatches).
+            const bool paperCoefficients = options.fitCoefficients && options.method == PatchMethod::Paper;
+            CornerPatch patch = buildCellPatch(ref.config, local, &mc.pairing03, &loops, paperCoefficients);
+            if (paperCoefficients && options.central == CentralRule::Interior) {
+              Vec3 p;
+              std::function<double(const Vec3&)> reference;
+              if (options.exactField) {
+                reference = [&](const Vec3& x) {
+                  return options.exactField->value(geometry.indexToWorld(origin + x)) - iso;
+                };
+              } else {
+                const GridBrick& b = bricks[ref.brick];
+                std::array<double, 8> v;
+                for (int k = 0; k < 8; ++k) {
+                  auto vc = cube::vertexCoords(k);
+                  v[k] = b.grid->at(gc[0] - b.offset[0] + vc[0], gc[1] - b.offset[1] + vc[1],
+                                    gc[2] - b.offset[2] + vc[2]);
+                }
+                reference = [v, iso](const Vec3& x) {
+                  double sum = 0;
+                  for (int k = 0; k < 8; ++k) {
+                    auto vc = cube::vertexCoords(k);
+                    sum += v[k] * (vc[0] ? x[0] : 1 - x[0]) * (vc[1] ? x[1] : 1 - x[1]) *
+                           (vc[2] ? x[2] : 1 - x[2]);
+                  }
+                  return sum - iso;
+                };
               }
-              return sum - iso;
-            };
+              if (interiorPoint(patch, reference, p)) patch.central = fitCentralCoefficient(patch, p);
+            }
+            mc.index = {static_cast<std::uint32_t>(gc[0]), static_cast<std::uint32_t>(gc[1]),
+                        static_cast<std::uint32_t>(gc[2])};
+            mc.config = ref.config;
+            mc.numLoops = static_cast<std::uint8_t>(loops.numLoops);
+            mc.loopSize = loops.loopSize;
+            mc.faceCoefficient = patch.faceCoefficient;
+            mc.central = patch.central;
+            for (int k = 0; k < patch.numCorners; ++k)
+              model.corners[mc.firstCorner + k] = vertexIndex[loops.edges[k]];
+            std::size_t done = ++cellsDone;
+            if (done % 4096 == 0)
+              progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
           }
-          if (interiorPoint(patch, reference, p)) patch.central = fitCentralCoefficient(patch, p);
-        }
-        mc.index = {static_cast<std::uint32_t>(gc[0]), static_cast<std::uint32_t>(gc[1]),
-                    static_cast<std::uint32_t>(gc[2])};
-        mc.config = ref.config;
-        mc.numLoops = static_cast<std::uint8_t>(loops.numLoops);
-        mc.loopSize = loops.loopSize;
-        mc.faceCoefficient = patch.faceCoefficient;
-        mc.central = patch.central;
-        for (int k = 0; k < patch.numCorners; ++k) model.corners[mc.firstCorner + k] = vertexIndex[loops.edges[k]];
-        std::size_t done = ++cellsDone;
-        if (done % 4096 == 0) progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
-      }
-    });
+        });
     if (options.fitCoefficients && options.method == PatchMethod::Fitted) {
       // Reference: the analytic field in exact mode, else the tricubic interpolant of the cell's brick.
       const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
@@ -372,11 +379,13 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         if (options.normals == NormalMode::Exact) {
           ref.field = options.exactField;
           ref.geometry = &model.geometry;
-          ref.origin = Vec3(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
+          ref.origin =
+              Vec3(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
           ref.isovalue = iso;
         } else {
           const GridBrick& b = bricks[cells[c].brick];
-          ref = tricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]}, iso);
+          ref = tricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]},
+                                  iso);
         }
         ref.metric = metric;
         return ref;

@@ -8,6 +8,7 @@
 #include <limits>
 #include <vector>
 
+#include "cip/bisection.h"
 #include "cip/cube_topology.h"
 #include "cip/patch_coefficients.h"
 
@@ -281,30 +282,11 @@ struct FaceResult {
   bool ok = true;
 };
 
-/// Model::patch without recomputing the loops.
-CornerPatch patchOf(const Model& model, std::size_t c, const CellLoops& loops) {
-  const ModelCell& cell = model.cells[c];
-  CornerPatch p;
-  p.numCorners = cell.numCorners();
-  const Vec3 origin = model.cellOrigin(c);
-  for (int k = 0; k < p.numCorners; ++k) {
-    const IsoVertex& v = model.vertices[model.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]];
-    p.point[k] = v.position - origin;
-    p.normal[k] = v.normal;
-    p.weight[k] = v.weight;
-    p.edge[k] = loops.edges[k];
-  }
-  p.faceMask = loops.faceMask;
-  p.faceCoefficient = cell.faceCoefficient;
-  p.central = cell.central;
-  return p;
-}
-
 FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& loops,
                    const CellReference& ref) {
   const std::size_t c = entry.cell[0];
   const int f = entry.face[0];
-  CornerPatch patch = patchOf(model, c, loops);
+  CornerPatch patch = model.patch(c, loops);
   FaceCrossings fc = faceCrossingsOf(patch, f, (model.cells[c].pairing03 >> f) & 1);
   constexpr int n = kFaceLattice;
   std::array<double, n * n> r;
@@ -546,17 +528,7 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
   for (int b = 1; b <= kBrackets; ++b) {
     double t1 = static_cast<double>(b) / kBrackets, c1 = b == kBrackets ? s[2] : cubic(t1);
     if ((c0 > 0) != (c1 > 0)) {
-      double lo = t0, hi = t1, flo = c0;
-      for (int it = 0; it < 44; ++it) {  // bracket width 2^-48
-        double mid = 0.5 * (lo + hi), fm = cubic(mid);
-        if ((fm > 0) == (flo > 0)) {
-          lo = mid;
-          flo = fm;
-        } else {
-          hi = mid;
-        }
-      }
-      double root = 0.5 * (lo + hi);
+      double root = bisectSignChange(cubic, t0, t1, c0, 44);  // bracket width 2^-48
       if (std::abs(root - tLinear) < bestGap) {
         bestGap = std::abs(root - tLinear);
         best = root;
@@ -676,7 +648,7 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
                         for (std::size_t c = r.begin(); c != r.end(); ++c) {
                           if (!cellDirty[c]) continue;
                           model.cells[c].central = 0;
-                          CellResult cr = fitCell(patchOf(model, c, loops[c]), reference(c));
+                          CellResult cr = fitCell(model.patch(c, loops[c]), reference(c));
                           model.cells[c].central = cr.central;
                           cellOk[c] = cr.ok;
                         }

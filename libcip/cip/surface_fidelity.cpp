@@ -1,10 +1,12 @@
 #include "cip/surface_fidelity.h"
 
-#include <Eigen/Geometry>
 #include <tbb/parallel_for.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+
+#include "cip/bisection.h"
 
 namespace cip {
 
@@ -35,7 +37,9 @@ Mat3 fieldHessian(const ScalarField& f, const Vec3& p, double h) {
 }
 
 // The k x k lines along `axis` through a unit cell: cell-local (u, v) offsets along the two other axes.
-double lineOffset(int a, int k) { return (a + 0.5) / k; }
+double lineOffset(int a, int k) {
+  return (a + 0.5) / k;
+}
 
 template <class PerCell>
 std::vector<SurfaceSample> collect(std::size_t cells, PerCell&& perCell) {
@@ -81,17 +85,7 @@ std::vector<SurfaceSample> samplePatchSurface(const Model& model, int k) {
           for (int s = 1; s <= kSteps; ++s) {
             double t = static_cast<double>(s) / kSteps, f = p.value(at(t));
             if ((f > 0) != (prevF > 0)) {
-              double lo = prevT, hi = t, flo = prevF;
-              for (int it = 0; it < 60; ++it) {
-                double mid = 0.5 * (lo + hi), fm = p.value(at(mid));
-                if ((fm > 0) == (flo > 0)) {
-                  lo = mid;
-                  flo = fm;
-                } else {
-                  hi = mid;
-                }
-              }
-              Vec3 local = at(0.5 * (lo + hi));
+              Vec3 local = at(bisectSignChange([&](double u) { return p.value(at(u)); }, prevT, t, prevF));
               PatchDerivatives d = p.derivatives(local);
               patchDerivativesToWorld(model.geometry.spacing, d.gradient, d.hessian);
               SurfaceSample smp;
@@ -121,7 +115,8 @@ std::vector<SurfaceSample> sampleMeshSurface(const TriangleMesh& mesh, const Mod
       const auto& tri = mesh.triangles[t];
       Vec3 centroid = (mesh.positions[tri[0]] + mesh.positions[tri[1]] + mesh.positions[tri[2]]) / 3.0;
       Vec3 idx = model.geometry.worldToIndex(centroid);
-      cell = model.findCell(static_cast<std::int64_t>(std::floor(idx.x())), static_cast<std::int64_t>(std::floor(idx.y())),
+      cell = model.findCell(static_cast<std::int64_t>(std::floor(idx.x())),
+                            static_cast<std::int64_t>(std::floor(idx.y())),
                             static_cast<std::int64_t>(std::floor(idx.z())));
     }
     if (cell >= 0 && static_cast<std::size_t>(cell) < byCell.size()) byCell[cell].push_back(t);
@@ -133,7 +128,8 @@ std::vector<SurfaceSample> sampleMeshSurface(const TriangleMesh& mesh, const Mod
       const auto& tri = mesh.triangles[t];
       Vec3 q[3];
       for (int i = 0; i < 3; ++i) q[i] = model.geometry.worldToIndex(mesh.positions[tri[i]]) - origin;
-      Vec3 facet = (mesh.positions[tri[1]] - mesh.positions[tri[0]]).cross(mesh.positions[tri[2]] - mesh.positions[tri[0]]);
+      Vec3 facet = (mesh.positions[tri[1]] - mesh.positions[tri[0]])
+                       .cross(mesh.positions[tri[2]] - mesh.positions[tri[0]]);
       if (!(facet.norm() > 0)) continue;
       for (int axis = 0; axis < 3; ++axis) {
         int ua = (axis + 1) % 3, va = (axis + 2) % 3;
@@ -179,8 +175,8 @@ ErrorSummary summarize(std::vector<double> e) {
   return s;
 }
 
-FidelityMeasures measureFidelity(const std::vector<SurfaceSample>& samples, const ScalarField& truth, double iso,
-                                 double voxelSize, bool withCurvature) {
+FidelityMeasures measureFidelity(const std::vector<SurfaceSample>& samples, const ScalarField& truth,
+                                 double iso, double voxelSize, bool withCurvature) {
   std::vector<double> dist(samples.size()), angle(samples.size()), curv(withCurvature ? samples.size() : 0);
   tbb::parallel_for(std::size_t(0), samples.size(), [&](std::size_t i) {
     const SurfaceSample& s = samples[i];
