@@ -12,12 +12,12 @@ struct ExtractStats {
   std::array<std::int64_t, 3> dims{};
   double isovalue = 0;
   std::string normals, central, method;
-  std::map<std::string, double> seconds;          ///< per stage
+  std::map<std::string, double> seconds;            ///< per stage
   std::map<std::string, std::size_t> bytesWritten;  ///< per output file
 };
 
-/// Writes the stats and the model's counts (non-empty cells, isovertices, corners, loops-per-cell histogram) as JSON,
-/// atomically.
+/// Writes the stats and the model's counts (non-empty cells, isovertices, corners, loops-per-cell histogram)
+/// as JSON, atomically.
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

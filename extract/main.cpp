@@ -1,6 +1,5 @@
 // extract: volume -> corner-patch model (.cip), plus optional marching-cubes and patch meshes.
 #include <CLI/CLI.hpp>
-
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -9,19 +8,21 @@
 
 #include "cip/analytic_field.h"
 #include "cip/error.h"
+#include "cip/marching_cubes.h"
 #include "cip/model_builder.h"
 #include "cip/model_file.h"
-#include "cip/progress_bar.h"
-#include "cip/marching_cubes.h"
 #include "cip/patch_mesh.h"
 #include "cip/ply.h"
+#include "cip/progress_bar.h"
 #include "cip/volume_reader.h"
 #include "extract_stats.h"
 
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double secondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+double secondsSince(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
 
 struct Options {
   std::string input, output, mcMesh, patchMesh, statsJson;
@@ -50,9 +51,9 @@ int run(const Options& opt) {
   std::optional<double> defaultIso;
   const bool isFile = std::filesystem::exists(opt.input);
   if (!isFile && (field = cip::makeAnalyticField(opt.input))) {
-    volume = cip::fromDense(cip::sampleField(*field, opt.resolution,
-                                             opt.input + " sampled at " + std::to_string(opt.resolution) +
-                                                 " cells per axis over [-1,1]^3"));
+    volume = cip::fromDense(cip::sampleField(
+        *field, opt.resolution,
+        opt.input + " sampled at " + std::to_string(opt.resolution) + " cells per axis over [-1,1]^3"));
     defaultIso = field->defaultIsovalue();
     stats.inputType = "analytic field " + opt.input;
   } else if (!isFile) {
@@ -90,7 +91,8 @@ int run(const Options& opt) {
   }
   auto [lo, hi] = volume.range();
   if (!(build.isovalue > lo && build.isovalue < hi)) {
-    std::fprintf(stderr, "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n",
+    std::fprintf(stderr,
+                 "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n",
                  build.isovalue, lo, hi);
   }
   build.normals = cip::parseNormalMode(opt.normals);
@@ -157,41 +159,64 @@ int main(int argc, char** argv) {
   Options opt;
   CLI::App app{
       "extract: turn a volume into a corner-patch model (.cip).\n"
-      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz, .vdb, or raw with --dims/--type) or an analytic field\n"
+      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz, .vdb, or raw with --dims/--type) or an analytic "
+      "field\n"
       "name (sphere, torus, gyroid, marschner-lobb, plane) sampled over [-1,1]^3.\n\n"
       "Examples:\n"
       "  extract data/blobs.nhdr --iso 0.5 -o blobs.cip\n"
       "  extract sphere --resolution 64 --normals exact -o sphere.cip\n"
       "  extract head.raw --dims 64,64,93 --type int16 --spacing 3.2,3.2,1.5 --iso 500 -o head.cip"};
-  app.add_option("input", opt.input, "volume file or analytic field name")->required();
-  app.add_option("-o,--output", opt.output, "model file to write (.cip)")->required();
-  app.add_option("--iso", opt.iso, "isovalue; positive side = value > isovalue (default: 0 for level sets and "
-                                   "the field's own value for analytic fields; required otherwise)");
-  app.add_option("--normals", opt.normals, "corner-plane normals: edge, gradient (default) or exact (analytic only)")
+  app.add_option("input", opt.input, "volume file or analytic field name, e.g. tooth.nhdr or sphere")
+      ->required();
+  app.add_option("-o,--output", opt.output, "model file to write (.cip), e.g. -o tooth.cip")->required();
+  app.add_option("--iso", opt.iso,
+                 "isovalue; positive side = value > isovalue (default: 0 for level sets and "
+                 "the field's own value for analytic fields; required otherwise), e.g. --iso 120");
+  app.add_option(
+         "--normals", opt.normals,
+         "corner-plane normals: edge, gradient (default) or exact (analytic only), e.g. --normals exact")
       ->check(CLI::IsMember({"edge", "gradient", "exact"}));
-  app.add_option("--central", opt.central, "paper method: central coefficient zero (default) or interior (eq. 6 at "
-                                           "a reference surface point inside the cell); fitted chooses its own")
+  app.add_option(
+         "--central", opt.central,
+         "paper method: central coefficient zero (default) or interior (eq. 6 at "
+         "a reference surface point inside the cell); fitted chooses its own. e.g. --central interior")
       ->check(CLI::IsMember({"zero", "interior"}));
-  app.add_option("--method", opt.method, "patch coefficients: fitted (default: no spurious sheets, see docs/method.md) "
-                                         "or paper (the corner I-patch paper's rules)")
+  app.add_option("--method", opt.method,
+                 "patch coefficients: fitted (default: no spurious sheets, see docs/method.md) "
+                 "or paper (the corner I-patch paper's rules), e.g. --method paper")
       ->check(CLI::IsMember({"paper", "fitted"}));
-  app.add_option("--resolution", opt.resolution, "analytic fields: cells per axis over [-1,1]^3 (default 64)")
+  app.add_option("--resolution", opt.resolution,
+                 "analytic fields: cells per axis over [-1,1]^3 (default 64), e.g. --resolution 128")
       ->check(CLI::Range(1, 4096));
-  app.add_option("--dims", opt.dims, "raw input: grid points per axis, e.g. 64,64,93");
-  app.add_option("--type", opt.type, "raw input: uint8|int8|uint16|int16|uint32|int32|float32|float64");
-  app.add_option("--endian", opt.endian, "raw input: little (default) or big");
-  app.add_option("--spacing", opt.spacing, "raw input: world spacing sx,sy,sz (default 1,1,1)")->delimiter(',');
-  app.add_option("--origin", opt.origin, "raw input: world origin x,y,z of the first sample (default 0,0,0)")
+  app.add_option("--dims", opt.dims, "raw input: grid points per axis, e.g. --dims 64,64,93");
+  app.add_option("--type", opt.type,
+                 "raw input: uint8|int8|uint16|int16|uint32|int32|float32|float64, e.g. --type int16");
+  app.add_option("--endian", opt.endian, "raw input: little (default) or big, e.g. --endian big");
+  app.add_option("--spacing", opt.spacing,
+                 "raw input: world spacing sx,sy,sz (default 1,1,1), e.g. --spacing 3.2,3.2,1.5")
       ->delimiter(',');
-  app.add_option("--offset", opt.offset, "raw input: bytes to skip before the first sample (default 0)");
-  app.add_option("--grid", opt.grid, "OpenVDB input: grid name (default: the first float or double grid)");
-  app.add_option("--mc-mesh", opt.mcMesh, "also write the marching-cubes mesh on the same grid (binary PLY)");
-  app.add_option("--patch-mesh", opt.patchMesh, "also write a triangle mesh of the corner-patch surface (binary PLY)");
-  app.add_option("--subdiv", opt.subdiv, "patch mesh: samples per cell edge (default 4)")->check(CLI::Range(1, 64));
-  app.add_option("--stats-json", opt.statsJson, "write run statistics as JSON");
-  app.add_option("--threads", opt.threads, "worker threads (default: all)")->check(CLI::Range(0, 1024));
-  app.add_flag("--skip-nonfinite", opt.skipNonFinite, "leave cells with NaN/Inf voxels empty instead of failing");
-  app.add_flag("-q,--quiet", opt.quiet, "no progress bar or summary on stderr");
+  app.add_option(
+         "--origin", opt.origin,
+         "raw input: world origin x,y,z of the first sample (default 0,0,0), e.g. --origin -51.5,-47,-80.5")
+      ->delimiter(',');
+  app.add_option("--offset", opt.offset,
+                 "raw input: bytes to skip before the first sample (default 0), e.g. --offset 352");
+  app.add_option("--grid", opt.grid,
+                 "OpenVDB input: grid name (default: the first float or double grid), e.g. --grid density");
+  app.add_option("--mc-mesh", opt.mcMesh,
+                 "also write the marching-cubes mesh on the same grid (binary PLY), e.g. --mc-mesh mc.ply");
+  app.add_option(
+      "--patch-mesh", opt.patchMesh,
+      "also write a crack-free mesh of the corner-patch surface (binary PLY), e.g. --patch-mesh p.ply");
+  app.add_option("--subdiv", opt.subdiv, "patch mesh: samples per cell edge (default 4), e.g. --subdiv 8")
+      ->check(CLI::Range(1, 64));
+  app.add_option("--stats-json", opt.statsJson, "write run statistics as JSON, e.g. --stats-json stats.json");
+  app.add_option("--threads", opt.threads,
+                 "worker threads, 0 = all (default); the model does not depend on it, e.g. --threads 1")
+      ->check(CLI::Range(0, 1024));
+  app.add_flag("--skip-nonfinite", opt.skipNonFinite,
+               "leave cells with NaN/Inf voxels empty instead of failing, e.g. --skip-nonfinite");
+  app.add_flag("-q,--quiet", opt.quiet, "no progress bar or summary on stderr, e.g. --quiet");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
