@@ -25,6 +25,11 @@ struct PatchRayContext {
   double bestT = 0;  ///< closest hit so far
   std::uint32_t bestCell = 0;
   bool found = false;
+
+  PatchRayContext(const PatchScene* s, const Ray& r, double near, double far)
+      : scene(s), ray(r), tNear(near), tFar(far), bestT(far) {
+    rtcInitIntersectContext(&embree);
+  }
 };
 
 void patchBounds(const RTCBoundsFunctionArguments* args) {
@@ -156,13 +161,7 @@ SurfaceHit PatchScene::surfaceAt(const Ray& ray, double t, std::uint32_t cell) c
 }
 
 bool PatchScene::intersect(const Ray& ray, double tNear, double tFar, SurfaceHit& hit) const {
-  PatchRayContext ctx;
-  rtcInitIntersectContext(&ctx.embree);
-  ctx.scene = this;
-  ctx.ray = ray;
-  ctx.tNear = tNear;
-  ctx.tFar = tFar;
-  ctx.bestT = tFar;
+  PatchRayContext ctx(this, ray, tNear, tFar);
   RTCRayHit rh;
   setEmbreeRay(rh.ray, ray, tNear, tFar);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
@@ -175,13 +174,7 @@ bool PatchScene::intersect(const Ray& ray, double tNear, double tFar, SurfaceHit
 }
 
 bool PatchScene::occluded(const Ray& ray, double tNear, double tFar) const {
-  PatchRayContext ctx;
-  rtcInitIntersectContext(&ctx.embree);
-  ctx.scene = this;
-  ctx.ray = ray;
-  ctx.tNear = tNear;
-  ctx.tFar = tFar;
-  ctx.bestT = tFar;
+  PatchRayContext ctx(this, ray, tNear, tFar);
   RTCRay r;
   setEmbreeRay(r, ray, tNear, tFar);
   rtcOccluded1(scene_, &ctx.embree, &r);
