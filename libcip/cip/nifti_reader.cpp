@@ -247,10 +247,7 @@ DenseGrid readNifti(const std::string& path, std::size_t maxBytes) {
   }
   grid.geometry.spacing = h.spacing;
   grid.geometry.origin = h.origin;
-  std::string name =
-      path.substr(path.find_last_of('/') == std::string::npos ? 0 : path.find_last_of('/') + 1);
-  grid.description = name + " (NIfTI " + toString(h.type) + " " + std::to_string(h.dims[0]) + "x" +
-                     std::to_string(h.dims[1]) + "x" + std::to_string(h.dims[2]) + ")";
+  grid.description = describeDenseFile(path, "NIfTI", h.type, h.dims);
   return grid;
 }
 

@@ -507,10 +507,7 @@ DenseGrid readNrrd(const std::string& path, std::size_t maxBytes) {
   if (h.encoding == NrrdEncoding::Gzip) source->expectEnd("compressed data");
   grid.geometry.spacing = h.spacing;
   grid.geometry.origin = h.origin;
-  std::string name =
-      path.substr(path.find_last_of('/') == std::string::npos ? 0 : path.find_last_of('/') + 1);
-  grid.description = name + " (NRRD " + toString(h.type) + " " + std::to_string(h.dims[0]) + "x" +
-                     std::to_string(h.dims[1]) + "x" + std::to_string(h.dims[2]) + ")";
+  grid.description = describeDenseFile(path, "NRRD", h.type, h.dims);
   return grid;
 }
 

@@ -50,10 +50,7 @@ DenseGrid readRaw(const std::string& path, const RawFormat& format, std::size_t 
   grid.geometry.origin = format.origin;
   FileByteSource source(path, format.offset);
   readSamplesInto(source, format.type, format.endian, grid);
-  std::string name =
-      path.substr(path.find_last_of('/') == std::string::npos ? 0 : path.find_last_of('/') + 1);
-  grid.description = name + " (raw " + toString(format.type) + " " + std::to_string(format.dims[0]) + "x" +
-                     std::to_string(format.dims[1]) + "x" + std::to_string(format.dims[2]) + ")";
+  grid.description = describeDenseFile(path, "raw", format.type, format.dims);
   return grid;
 }
 

@@ -26,11 +26,6 @@ void initializeOpenVdb() {
   std::call_once(once, [] { openvdb::initialize(); });
 }
 
-std::string baseName(const std::string& path) {
-  std::size_t slash = path.find_last_of('/');
-  return slash == std::string::npos ? path : path.substr(slash + 1);
-}
-
 std::string gridClassName(openvdb::GridClass c) {
   switch (c) {
     case openvdb::GRID_LEVEL_SET:

@@ -13,6 +13,17 @@
 
 namespace cip {
 
+std::string baseName(const std::string& path) {
+  std::size_t slash = path.find_last_of('/');
+  return slash == std::string::npos ? path : path.substr(slash + 1);
+}
+
+std::string describeDenseFile(const std::string& path, const std::string& format, SampleType type,
+                              const std::array<std::int64_t, 3>& dims) {
+  return baseName(path) + " (" + format + " " + toString(type) + " " + std::to_string(dims[0]) + "x" +
+         std::to_string(dims[1]) + "x" + std::to_string(dims[2]) + ")";
+}
+
 namespace {
 
 constexpr std::size_t kSlabBytes = std::size_t(4) << 20;

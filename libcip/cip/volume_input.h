@@ -23,6 +23,14 @@ namespace cip {
 /// a file.
 std::uint64_t fileSizeOf(const std::string& path);
 
+/// The file name part of a path (after the last '/').
+std::string baseName(const std::string& path);
+
+/// Description of a dense volume file for the model's source field, e.g. "tooth.nhdr (NRRD uint8
+/// 103x94x161)".
+std::string describeDenseFile(const std::string& path, const std::string& format, SampleType type,
+                              const std::array<std::int64_t, 3>& dims);
+
 /// True when `path` ends with `suffix`, ignoring ASCII case.
 bool endsWithNoCase(const std::string& path, const std::string& suffix);
 
