@@ -11,15 +11,6 @@ int commonFace(int e1, int e2) {
   return -1;
 }
 
-std::uint16_t crossedEdges(std::uint8_t config) {
-  std::uint16_t mask = 0;
-  for (int e = 0; e < kEdges; ++e) {
-    bool s0 = (config >> edgeVertex(e, 0)) & 1, s1 = (config >> edgeVertex(e, 1)) & 1;
-    if (s0 != s1) mask = static_cast<std::uint16_t>(mask | (1u << e));
-  }
-  return mask;
-}
-
 std::uint8_t crossedFaces(std::uint8_t config) {
   std::uint16_t edges = crossedEdges(config);
   std::uint8_t faces = 0;

@@ -4,11 +4,12 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <vector>
 
-#include "cip/bisection.h"
 #include "cip/cube_topology.h"
 #include "cip/patch_coefficients.h"
 
@@ -36,6 +37,12 @@ constexpr double latticeStep(int n) {
 constexpr double latticeCoord(int i, int n) {
   return (i + kLatticeInset) * latticeStep(n);
 }
+/// Samples within kMarginVoxels of the reference surface by the first-order estimate are checked anyway if
+/// the patch gives them the wrong sign and Newton steps on the reference do not reach its surface within this
+/// many voxels (the margin of countSpuriousCells is 0.5).
+constexpr double kVerifiedVoxels = 0.45;
+/// Samples per uncrossed face border of the border checks (see fitFace).
+constexpr int kBorderSamples = 12;
 /// Weight of the ridge term of the coefficient fits (relative to a fit point at the cell or face centre).
 constexpr double kRidge = 1e-3;
 
@@ -78,27 +85,13 @@ double extendedSample(const DenseGrid& grid, std::array<std::int64_t, 3> p) {
 struct Interval {
   double lo = -kInf, hi = kInf;
   bool empty = false;
-  // The tightest bounds so far as fractions -a / b (b > 0), compared without dividing.
-  double loA = 0, loB = 0, hiA = 0, hiB = 0;
+  /// One constraint; written without data-dependent branches (it runs for every lattice point).
   void add(bool positive, double a, double b) {
-    if (!(b > 1e-300)) {
-      if ((a > 0) != positive) empty = true;
-      return;
-    }
-    if (positive) {
-      if (loB == 0 || a * loB < loA * b) {
-        loA = a;
-        loB = b;
-      }
-    } else if (hiB == 0 || a * hiB > hiA * b) {
-      hiA = a;
-      hiB = b;
-    }
-  }
-  /// Turns the fractions into lo and hi; call once after the last add.
-  void finish() {
-    if (loB != 0) lo = -loA / loB;
-    if (hiB != 0) hi = -hiA / hiB;
+    const bool degenerate = !(b > 1e-300);
+    empty |= degenerate & ((a > 0) != positive);
+    const double bound = degenerate ? (positive ? -kInf : kInf) : -a / b;
+    lo = positive ? std::max(lo, bound) : lo;
+    hi = positive ? hi : std::min(hi, bound);
   }
   bool feasible() const { return !empty && lo < hi; }
   /// `w` moved into the interval, kept a relative margin away from each end (an end puts the zero set through
@@ -109,6 +102,19 @@ struct Interval {
     double b = std::isfinite(hi) ? hi - kEps * std::abs(hi) : hi;
     if (!(a <= b)) return 0.5 * (lo + hi);
     return std::clamp(w, a, b);
+  }
+};
+
+/// Catmull-Rom weights and their derivatives at the n lattice coordinates (the same on every axis).
+template <int n>
+struct LatticeWeights {
+  double w[n][4], d[n][4];
+  LatticeWeights() {
+    for (int i = 0; i < n; ++i) catmullRom(latticeCoord(i, n), w[i], d[i]);
+  }
+  static const LatticeWeights& get() {
+    static const LatticeWeights weights;
+    return weights;
   }
 };
 
@@ -124,8 +130,7 @@ void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n
               ref.value(Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)));
     return;
   }
-  double w[n][4];
-  for (int i = 0; i < n; ++i) catmullRom(latticeCoord(i, n), w[i], nullptr);
+  const auto& w = LatticeWeights<n>::get().w;
   double ax[n][16], bxy[n * n][4];
   for (int a = 0; a < n; ++a)
     for (int jk = 0; jk < 16; ++jk) {
@@ -144,13 +149,14 @@ void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n
                                                       ref.isovalue;
 }
 
-/// Reference values and gradients on face f at the lattice coordinates in the face frame (index a + n
-/// b).
+/// Reference values on face f at the lattice coordinates in the face frame (index a + n b), and the squared
+/// gradient there in smallest-voxel units (ref.metric), for the distance estimate of the sign checks.
 template <int n>
 void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n * n>& value,
-                          std::array<Vec3, n * n>& gradient) {
+                          std::array<double, n * n>& gradient2) {
   const int axis = cube::faceAxis(f), side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
+  const Vec3& metric = ref.metric;
   if (ref.field) {
     for (int b = 0; b < n; ++b)
       for (int a = 0; a < n; ++a) {
@@ -159,115 +165,305 @@ void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n 
         x[uv[0]] = latticeCoord(a, n);
         x[uv[1]] = latticeCoord(b, n);
         value[static_cast<std::size_t>(a + n * b)] = ref.value(x);
-        gradient[static_cast<std::size_t>(a + n * b)] = ref.gradient(x);
+        gradient2[static_cast<std::size_t>(a + n * b)] = ref.gradient(x).cwiseProduct(metric).squaredNorm();
       }
     return;
   }
   // In-plane samples (node 1 + side across the face) and the across-face derivative at the node.
+  constexpr int stride[3] = {1, 4, 16};
+  const int su = stride[uv[0]], sv = stride[uv[1]], sn = stride[axis];
   const double dNode[2][4] = {{-0.5, 0, 0.5, 0}, {0, -0.5, 0, 0.5}};
   double p0[4][4], p1[4][4];
   for (int jb = 0; jb < 4; ++jb)
     for (int ia = 0; ia < 4; ++ia) {
-      std::array<int, 3> i3{};
-      i3[uv[0]] = ia;
-      i3[uv[1]] = jb;
-      auto at = [&](int c) {
-        i3[axis] = c;
-        return ref.samples[static_cast<std::size_t>(i3[0] + 4 * (i3[1] + 4 * i3[2]))];
-      };
-      p0[ia][jb] = at(1 + side);
-      p1[ia][jb] =
-          dNode[side][0] * at(0) + dNode[side][1] * at(1) + dNode[side][2] * at(2) + dNode[side][3] * at(3);
+      const double* column = &ref.samples[static_cast<std::size_t>(ia * su + jb * sv)];
+      p0[ia][jb] = column[(1 + side) * sn];
+      p1[ia][jb] = dNode[side][0] * column[0] + dNode[side][1] * column[sn] +
+                   dNode[side][2] * column[2 * sn] + dNode[side][3] * column[3 * sn];
     }
-  double w[n][4], dw[n][4];
-  for (int i = 0; i < n; ++i) catmullRom(latticeCoord(i, n), w[i], dw[i]);
+  const LatticeWeights<n>& lw = LatticeWeights<n>::get();
   double a0[n][4], ad[n][4], a1[n][4];
   for (int a = 0; a < n; ++a)
     for (int jb = 0; jb < 4; ++jb) {
       a0[a][jb] = ad[a][jb] = a1[a][jb] = 0;
       for (int ia = 0; ia < 4; ++ia) {
-        a0[a][jb] += w[a][ia] * p0[ia][jb];
-        ad[a][jb] += dw[a][ia] * p0[ia][jb];
-        a1[a][jb] += w[a][ia] * p1[ia][jb];
+        a0[a][jb] += lw.w[a][ia] * p0[ia][jb];
+        ad[a][jb] += lw.d[a][ia] * p0[ia][jb];
+        a1[a][jb] += lw.w[a][ia] * p1[ia][jb];
       }
     }
+  const double mu = metric[uv[0]], mv = metric[uv[1]], mn = metric[axis];
   for (int b = 0; b < n; ++b)
     for (int a = 0; a < n; ++a) {
       double v = 0, gu = 0, gv = 0, gn = 0;
       for (int jb = 0; jb < 4; ++jb) {
-        v += w[b][jb] * a0[a][jb];
-        gu += w[b][jb] * ad[a][jb];
-        gv += dw[b][jb] * a0[a][jb];
-        gn += w[b][jb] * a1[a][jb];
+        v += lw.w[b][jb] * a0[a][jb];
+        gu += lw.w[b][jb] * ad[a][jb];
+        gv += lw.d[b][jb] * a0[a][jb];
+        gn += lw.w[b][jb] * a1[a][jb];
       }
-      Vec3 g;
-      g[axis] = gn;
-      g[uv[0]] = gu;
-      g[uv[1]] = gv;
+      gu *= mu;
+      gv *= mv;
+      gn *= mn;
       value[static_cast<std::size_t>(a + n * b)] = v - ref.isovalue;
-      gradient[static_cast<std::size_t>(a + n * b)] = g;
+      gradient2[static_cast<std::size_t>(a + n * b)] = gu * gu + gv * gv + gn * gn;
     }
 }
 
-/// valueWithoutCentral and centralBasis of a patch at the cell lattice, by separable products: every term is
-/// a corner plane (linear) times squared face planes, each depending on one coordinate.
+/// Reference values and squared gradients (smallest-voxel units) at m points latticeCoord(i, m) along the
+/// cell edge along `axis` at cell-local coordinates `at` (0 or 1) of the other two axes. On a grid line the
+/// tricubic interpolant is the Catmull-Rom cubic of the samples along it, and its derivative across the line
+/// the cubic of their central differences, so this costs a few flops per point.
+template <int m>
+void referenceEdgeLine(const CellReference& ref, int axis, const std::array<int, 3>& at,
+                       std::array<double, m>& value, std::array<double, m>& gradient2) {
+  const auto other = cube::otherAxes(axis);
+  const Vec3& metric = ref.metric;
+  if (ref.field) {
+    for (int i = 0; i < m; ++i) {
+      Vec3 x(at[0], at[1], at[2]);
+      x[axis] = latticeCoord(i, m);
+      value[static_cast<std::size_t>(i)] = ref.value(x);
+      gradient2[static_cast<std::size_t>(i)] = ref.gradient(x).cwiseProduct(metric).squaredNorm();
+    }
+    return;
+  }
+  constexpr int stride[3] = {1, 4, 16};
+  const int base = (1 + at[other[0]]) * stride[other[0]] + (1 + at[other[1]]) * stride[other[1]];
+  double line[4], across[2][4];
+  for (int j = 0; j < 4; ++j) {
+    const int node = base + j * stride[axis];
+    line[j] = ref.samples[static_cast<std::size_t>(node)];
+    for (int k = 0; k < 2; ++k) {
+      const int s = stride[other[k]];
+      across[k][j] = 0.5 * (ref.samples[static_cast<std::size_t>(node + s)] -
+                            ref.samples[static_cast<std::size_t>(node - s)]);
+    }
+  }
+  const LatticeWeights<m>& lw = LatticeWeights<m>::get();
+  for (int i = 0; i < m; ++i) {
+    double v = 0, gl = 0, g0 = 0, g1 = 0;
+    for (int j = 0; j < 4; ++j) {
+      v += lw.w[i][j] * line[j];
+      gl += lw.d[i][j] * line[j];
+      g0 += lw.w[i][j] * across[0][j];
+      g1 += lw.w[i][j] * across[1][j];
+    }
+    gl *= metric[axis];
+    g0 *= metric[other[0]];
+    g1 *= metric[other[1]];
+    value[static_cast<std::size_t>(i)] = v - ref.isovalue;
+    gradient2[static_cast<std::size_t>(i)] = gl * gl + g0 * g0 + g1 * g1;
+  }
+}
+
+/// The patch on the lattice lines of a cell along one axis L (the other two axes at lattice coordinates):
+/// every term is a corner plane (linear) times squared face planes, each depending on one coordinate, so on
+/// the line through lattice point (p, q) of the other axes
+///   valueWithoutCentral(x) = sum_m s_m(x) (A_m[p, q] + x B_m[p, q]),  centralBasis(x) = s_c(x) C[p, q],
+/// with s_m(x) the product of the squared face planes across L selected by m (bit 0: plane x = 0, bit 1: x =
+/// 1). Building A, B, C costs O(terms n^2); each lattice point or fit point on a line then costs a few flops.
 template <int n>
-void patchCellLattice(const CornerPatch& patch, std::array<double, n * n * n>& value,
-                      std::array<double, n * n * n>& basis) {
-  // q[m][i]: product of the squared planes of one axis selected by m (bit 0: x = 0 plane, bit 1: x = 1
-  // plane).
-  double t[n], q[4][n];
+class PatchLines {
+ public:
+  PatchLines(const CornerPatch& patch, int lineAxis) : axis_(lineAxis), other_(cube::otherAxes(lineAxis)) {
+    constexpr int axisStride[3] = {1, n, n * n};
+    stride_ = {axisStride[axis_], axisStride[other_[0]], axisStride[other_[1]]};
+    for (int i = 0; i < n; ++i) {
+      const double t = latticeCoord(i, n);
+      t_[i] = t;
+      for (int m = 0; m < 4; ++m) s_[m][i] = squares(m, t);
+    }
+    auto add = [&](double coefficient, const Vec3& normal, double offset, std::uint8_t mask) {
+      const int mL = pattern(mask, axis_), mP = pattern(mask, other_[0]), mQ = pattern(mask, other_[1]);
+      used_ |= 1u << mL;
+      for (int q = 0; q < n; ++q)
+        for (int p = 0; p < n; ++p) {
+          const double across = coefficient * s_[mP][p] * s_[mQ][q];
+          const std::size_t pq = static_cast<std::size_t>(p + n * q);
+          b_[mL][pq] += across * normal[axis_];
+          a_[mL][pq] += across * (normal[other_[0]] * t_[p] + normal[other_[1]] * t_[q] + offset);
+        }
+    };
+    for (int c = 0; c < patch.numCorners; ++c) {
+      auto ef = cube::edgeFaces(patch.edge[c]);
+      add(patch.weight[c], patch.normal[c], -patch.normal[c].dot(patch.point[c]),
+          static_cast<std::uint8_t>(patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]))));
+    }
+    for (int f = 0; f < 6; ++f)
+      if (((patch.faceMask >> f) & 1) && patch.faceCoefficient[f] != 0)
+        add(patch.faceCoefficient[f], Vec3::Zero(), 1.0,
+            static_cast<std::uint8_t>(patch.faceMask & ~(1u << f)));
+    central_ = pattern(patch.faceMask, axis_);
+    const int cP = pattern(patch.faceMask, other_[0]), cQ = pattern(patch.faceMask, other_[1]);
+    for (int q = 0; q < n; ++q)
+      for (int p = 0; p < n; ++p) c_[static_cast<std::size_t>(p + n * q)] = s_[cP][p] * s_[cQ][q];
+  }
+
+  /// Lattice index (a + n (b + n d) over x, y, z) of point i along the line axis on line (p, q).
+  int index(int i, int p, int q) const { return i * stride_[0] + p * stride_[1] + q * stride_[2]; }
+
+  /// valueWithoutCentral and centralBasis at every lattice point.
+  void lattice(std::array<double, n * n * n>& value, std::array<double, n * n * n>& basis) const {
+    int patterns[4], numPatterns = 0;
+    for (int m = 0; m < 4; ++m)
+      if ((used_ >> m) & 1) patterns[numPatterns++] = m;
+    for (int q = 0; q < n; ++q)
+      for (int p = 0; p < n; ++p) {
+        const std::size_t pq = static_cast<std::size_t>(p + n * q);
+        double v[n];
+        for (int i = 0; i < n; ++i) v[i] = 0;
+        for (int k = 0; k < numPatterns; ++k) {
+          const int m = patterns[k];
+          const double a = a_[m][pq], b = b_[m][pq];
+          for (int i = 0; i < n; ++i) v[i] += s_[m][i] * (a + t_[i] * b);
+        }
+        const int base = p * stride_[1] + q * stride_[2];
+        for (int i = 0; i < n; ++i) {
+          const auto idx = static_cast<std::size_t>(base + i * stride_[0]);
+          value[idx] = v[i];
+          basis[idx] = s_[central_][i] * c_[pq];
+        }
+      }
+  }
+
+  /// valueWithoutCentral (returned) and centralBasis at coordinate x along the line (p, q).
+  double at(double x, int p, int q, double& basis) const {
+    const std::size_t pq = static_cast<std::size_t>(p + n * q);
+    double v = 0;
+    for (int m = 0; m < 4; ++m)
+      if ((used_ >> m) & 1) v += squares(m, x) * (a_[m][pq] + x * b_[m][pq]);
+    basis = squares(central_, x) * c_[pq];
+    return v;
+  }
+
+ private:
+  static int pattern(std::uint8_t mask, int axis) { return (mask >> (2 * axis)) & 3; }
+  static double squares(int m, double t) {
+    double s = 1;
+    if (m & 1) s *= t * t;
+    if (m & 2) s *= (1 - t) * (1 - t);
+    return s;
+  }
+  int axis_;
+  std::array<int, 2> other_;
+  std::array<int, 3> stride_;  ///< lattice index steps along the line axis and the two others
+  int central_ = 0;
+  unsigned used_ = 0;
+  double t_[n], s_[4][n];
+  std::array<std::array<double, n * n>, 4> a_{}, b_{};
+  std::array<double, n * n> c_{};
+};
+
+/// valueWithoutCentral and centralBasis of a patch on face f's lattice (face frame, index a + n b), by
+/// separable products as in PatchLines.
+template <int n>
+void patchFaceLattice(const CornerPatch& patch, int f, std::array<double, n * n>& value,
+                      std::array<double, n * n>& basis) {
+  const int axis = cube::faceAxis(f);
+  const double side = cube::faceSide(f);
+  const auto uv = cube::otherAxes(axis);
+  auto squares = [](int m, double t) {
+    double s = 1;
+    if (m & 1) s *= t * t;
+    if (m & 2) s *= (1 - t) * (1 - t);
+    return s;
+  };
+  double t[n], sq[4][n];
   for (int i = 0; i < n; ++i) {
     t[i] = latticeCoord(i, n);
-    q[0][i] = 1;
-    q[1][i] = t[i] * t[i];
-    q[2][i] = (1 - t[i]) * (1 - t[i]);
-    q[3][i] = q[1][i] * q[2][i];
+    for (int m = 0; m < 4; ++m) sq[m][i] = squares(m, t[i]);
   }
-  struct Term {
-    double coefficient;
-    Vec3 normal;  // zero for side terms
-    double offset;
-    int m[3];
-  };
-  std::array<Term, CornerPatch::kMaxTerms> terms;
-  int numTerms = 0;
-  auto split = [](std::uint8_t mask, int* m) {
-    for (int a = 0; a < 3; ++a) m[a] = (mask >> (2 * a)) & 3;
+  auto pattern = [](std::uint8_t mask, int a) { return (mask >> (2 * a)) & 3; };
+  value.fill(0);
+  auto add = [&](double coefficient, const Vec3& normal, double offset, std::uint8_t mask) {
+    const double across = coefficient * squares(pattern(mask, axis), side);
+    if (across == 0) return;
+    const double* su = sq[pattern(mask, uv[0])];
+    const double* sv = sq[pattern(mask, uv[1])];
+    const double constant = normal[axis] * side + offset;
+    for (int b = 0; b < n; ++b) {
+      const double rowScale = across * sv[b], rowConstant = constant + normal[uv[1]] * t[b];
+      for (int a = 0; a < n; ++a)
+        value[static_cast<std::size_t>(a + n * b)] += rowScale * su[a] * (rowConstant + normal[uv[0]] * t[a]);
+    }
   };
   for (int c = 0; c < patch.numCorners; ++c) {
     auto ef = cube::edgeFaces(patch.edge[c]);
-    Term& term = terms[static_cast<std::size_t>(numTerms++)];
-    term.coefficient = patch.weight[c];
-    term.normal = patch.normal[c];
-    term.offset = -patch.normal[c].dot(patch.point[c]);
-    split(static_cast<std::uint8_t>(patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]))), term.m);
+    add(patch.weight[c], patch.normal[c], -patch.normal[c].dot(patch.point[c]),
+        static_cast<std::uint8_t>(patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]))));
   }
-  for (int f = 0; f < 6; ++f) {
-    if (!((patch.faceMask >> f) & 1) || patch.faceCoefficient[f] == 0) continue;
-    Term& term = terms[static_cast<std::size_t>(numTerms++)];
-    term.coefficient = patch.faceCoefficient[f];
-    term.normal = Vec3::Zero();
-    term.offset = 1;
-    split(static_cast<std::uint8_t>(patch.faceMask & ~(1u << f)), term.m);
+  for (int g = 0; g < 6; ++g)
+    if (((patch.faceMask >> g) & 1) && patch.faceCoefficient[g] != 0)
+      add(patch.faceCoefficient[g], Vec3::Zero(), 1.0,
+          static_cast<std::uint8_t>(patch.faceMask & ~(1u << g)));
+  const double across = squares(pattern(patch.faceMask, axis), side);
+  const double* su = sq[pattern(patch.faceMask, uv[0])];
+  const double* sv = sq[pattern(patch.faceMask, uv[1])];
+  for (int b = 0; b < n; ++b)
+    for (int a = 0; a < n; ++a) basis[static_cast<std::size_t>(a + n * b)] = across * su[a] * sv[b];
+}
+
+/// Whether Newton steps on the reference from cell-local point x0 (reference value r0 != 0) reach its zero
+/// set within `radius` smallest voxels: a bound on the distance to the reference surface that, unlike the
+/// first-order estimate |r| / |grad r|, is not fooled by a large gradient far from the surface. The reference
+/// is the cell's own interpolant, extended polynomially a little beyond the cell.
+bool referenceSurfaceWithin(const CellReference& ref, const Vec3& x0, double r0, double radius) {
+  const Vec3& m = ref.metric;  // voxel coordinates y = x / m
+  Vec3 x = x0;
+  double value = r0;
+  for (int it = 0; it < 8; ++it) {
+    const Vec3 gy = ref.gradient(x).cwiseProduct(m);
+    const double gg = gy.squaredNorm();
+    if (!(gg > 0)) return false;
+    const Vec3 next = x - (value / gg) * gy.cwiseProduct(m);
+    const double travelled = (next - x0).cwiseQuotient(m).norm();
+    if (travelled > radius) return false;
+    const double nextValue = ref.value(next);
+    // A sign change between two points within the radius (a ball is convex) puts the surface within it.
+    if ((nextValue > 0) != (r0 > 0) || nextValue == 0) return true;
+    if (std::abs(nextValue) <= 1e-9 * std::abs(r0)) return true;
+    x = next;
+    value = nextValue;
   }
-  int central[3];
-  split(patch.faceMask, central);
-  for (int d = 0; d < n; ++d)
-    for (int b = 0; b < n; ++b) {
-      double* row = &value[static_cast<std::size_t>(n * (b + n * d))];
-      for (int a = 0; a < n; ++a) row[a] = 0;
-      for (int k = 0; k < numTerms; ++k) {
-        const Term& term = terms[static_cast<std::size_t>(k)];
-        double yz = term.coefficient * q[term.m[1]][b] * q[term.m[2]][d];
-        double planeYZ = term.normal.y() * t[b] + term.normal.z() * t[d] + term.offset;
-        const double* qx = q[term.m[0]];
-        for (int a = 0; a < n; ++a) row[a] += yz * (term.normal.x() * t[a] + planeYZ) * qx[a];
+  return false;
+}
+
+/// faceRestriction at the face lattice (index a + n b), by separable products: the perpendicular planes of
+/// canonical edges 0, 1 depend on v only (v, 1 - v), those of edges 2, 3 on u only (u, 1 - u).
+template <int n>
+void faceRestrictionLattice(const FaceCrossings& face, std::array<double, n * n>& cornerPart,
+                            std::array<double, n * n>& sideBasis) {
+  // along[k][i]: product of the squared perpendicular planes of the crossed edges other than k (k = 4: all of
+  // them) among those depending on the same coordinate, at lattice coordinate i; u-dependent for u, else v.
+  double uProduct[5][n], vProduct[5][n];
+  for (int i = 0; i < n; ++i) {
+    const double t = latticeCoord(i, n);
+    const double square[4] = {t * t, (1 - t) * (1 - t), t * t, (1 - t) * (1 - t)};
+    for (int k = 0; k < 5; ++k) {
+      uProduct[k][i] = vProduct[k][i] = 1;
+      for (int j = 0; j < 4; ++j) {
+        if (j == k || !((face.crossed >> j) & 1)) continue;
+        (j < 2 ? vProduct : uProduct)[k][i] *= square[j];
       }
-      double yz = q[central[1]][b] * q[central[2]][d];
-      for (int a = 0; a < n; ++a)
-        basis[static_cast<std::size_t>(a + n * (b + n * d))] = yz * q[central[0]][a];
     }
+  }
+  for (int b = 0; b < n; ++b)
+    for (int a = 0; a < n; ++a) {
+      sideBasis[static_cast<std::size_t>(a + n * b)] = uProduct[4][a] * vProduct[4][b];
+      cornerPart[static_cast<std::size_t>(a + n * b)] = 0;
+    }
+  for (int k = 0; k < 4; ++k) {
+    if (!((face.crossed >> k) & 1)) continue;
+    const Vec2 normal = face.weight[k] * face.normal[k];
+    const double offset = -normal.dot(face.point[k]);
+    for (int b = 0; b < n; ++b) {
+      const double v = latticeCoord(b, n), across = vProduct[k][b];
+      for (int a = 0; a < n; ++a)
+        cornerPart[static_cast<std::size_t>(a + n * b)] +=
+            (normal.x() * latticeCoord(a, n) + normal.y() * v + offset) * uProduct[k][a] * across;
+    }
+  }
 }
 
 struct FaceEntry {
@@ -289,18 +485,36 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& 
   CornerPatch patch = model.patch(c, loops);
   FaceCrossings fc = faceCrossingsOf(patch, f, (model.cells[c].pairing03 >> f) & 1);
   constexpr int n = kFaceLattice;
-  std::array<double, n * n> r;
-  std::array<Vec3, n * n> rg;
-  referenceFaceLattice<n>(ref, f, r, rg);
+  std::array<double, n * n> r, rg2;
+  referenceFaceLattice<n>(ref, f, r, rg2);
+  std::array<double, n * n> cornerPart, sideBasis;
+  faceRestrictionLattice<n>(fc, cornerPart, sideBasis);
   Interval interval;
-  for (int b = 0; b < n; ++b)
-    for (int a = 0; a < n; ++a) {
-      const std::size_t i = static_cast<std::size_t>(a + n * b);
-      if (!(r[i] * r[i] > kMarginVoxels * kMarginVoxels * rg[i].cwiseProduct(ref.metric).squaredNorm()))
-        continue;
-      FaceRestriction fr = faceRestriction(fc, Vec2(latticeCoord(a, n), latticeCoord(b, n)));
-      interval.add(r[i] > 0, fr.cornerPart, fr.sideBasis);
+  for (std::size_t i = 0; i < r.size(); ++i)
+    if (r[i] * r[i] > kMarginVoxels * kMarginVoxels * rg2[i])
+      interval.add(r[i] > 0, cornerPart[i], sideBasis[i]);
+  // Uncrossed borders of the face. When the cell's other face through such an edge is a bounding plane, the
+  // patch vanishes on the edge to second order and its sign next to it, in a wedge along the whole edge, is
+  // the sign of R + w D on the border line: checked densely along the line.
+  const int axis = cube::faceAxis(f);
+  const auto uv = cube::otherAxes(axis);
+  for (int k = 0; k < 4; ++k) {
+    if ((fc.crossed >> k) & 1) continue;
+    // Canonical edges 0, 1 run along u at v = 0, 1; edges 2, 3 along v at u = 0, 1.
+    const int along = k < 2 ? uv[0] : uv[1], fixed = k < 2 ? uv[1] : uv[0];
+    std::array<int, 3> at{};
+    at[static_cast<std::size_t>(axis)] = cube::faceSide(f);
+    at[static_cast<std::size_t>(fixed)] = k & 1;
+    std::array<double, kBorderSamples> lineValue, lineGradient2;
+    referenceEdgeLine<kBorderSamples>(ref, along, at, lineValue, lineGradient2);
+    for (int i = 0; i < kBorderSamples; ++i) {
+      const double rv = lineValue[static_cast<std::size_t>(i)];
+      if (!(rv * rv > kMarginVoxels * kMarginVoxels * lineGradient2[static_cast<std::size_t>(i)])) continue;
+      const double t = latticeCoord(i, kBorderSamples);
+      const FaceRestriction fr = faceRestriction(fc, k < 2 ? Vec2(t, k & 1) : Vec2(k & 1, t));
+      interval.add(rv > 0, fr.cornerPart, fr.sideBasis);
     }
+  }
   // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
   double num = 0, den = 0;
   int fitCount = 0;
@@ -336,7 +550,6 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& 
   den += kRidge * dCentre * dCentre * std::max(1, fitCount);
   double w = -num / den;
   FaceResult out;
-  interval.finish();
   out.ok = interval.feasible();
   out.coefficient = out.ok ? interval.clamp(w) : w;
   if (!std::isfinite(out.coefficient)) out.coefficient = 0;
@@ -350,62 +563,119 @@ struct CellResult {
 
 CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   constexpr int n = kCellLattice;
-  std::array<double, n * n * n> r, patchValue, patchBasis;
-  referenceCellLattice<n>(ref, r);
-  patchCellLattice<n>(patch, patchValue, patchBasis);
-  // Neighbours along an axis for the reference gradient (central differences, one-sided at the lattice
-  // border), and 1 / (their distance).
-  std::array<int, n> below, above;
-  std::array<double, n> inverseSpan;
-  for (int i = 0; i < n; ++i) {
-    below[i] = std::max(i - 1, 0);
-    above[i] = std::min(i + 1, n - 1);
-    inverseSpan[i] = 1.0 / (latticeStep(n) * (above[i] - below[i]));
-  }
-  constexpr std::array<int, 3> stride{1, n, n * n};
+  // Fit points lie on the lattice lines along the axis closest to the mean corner normal.
   Vec3 meanNormal = Vec3::Zero();
   for (int k = 0; k < patch.numCorners; ++k) meanNormal += patch.normal[k];
   int fitAxis = 0;
   meanNormal.cwiseAbs().maxCoeff(&fitAxis);
+  const PatchLines<n> lines(patch, fitAxis);
+  std::array<double, n * n * n> r, patchValue, patchBasis;
+  referenceCellLattice<n>(ref, r);
+  lines.lattice(patchValue, patchBasis);
+  // Squared reference gradient per lattice point (central differences, one-sided at the lattice border, in
+  // smallest-voxel units), then the sign constraint of every point farther than the margin from the surface.
+  // Neighbour offsets along one axis (in units of that axis' stride) and 1 / (their distance).
+  int up[n], down[n];
+  double inverseSpan[n];
+  for (int i = 0; i < n; ++i) {
+    up[i] = i + 1 < n ? 1 : 0;
+    down[i] = i > 0 ? 1 : 0;
+    inverseSpan[i] = 1.0 / (latticeStep(n) * (up[i] + down[i]));
+  }
+  std::array<double, n * n * n> g2;
+  for (int d = 0; d < n; ++d)
+    for (int b = 0; b < n; ++b) {
+      const double* row = &r[static_cast<std::size_t>(n * (b + n * d))];
+      const double sy = inverseSpan[b] * ref.metric.y(), sz = inverseSpan[d] * ref.metric.z();
+      const int yUp = up[b] * n, yDown = down[b] * n, zUp = up[d] * n * n, zDown = down[d] * n * n;
+      for (int a = 0; a < n; ++a) {
+        const double gx = (row[a + up[a]] - row[a - down[a]]) * inverseSpan[a] * ref.metric.x();
+        const double gy = (row[a + yUp] - row[a - yDown]) * sy;
+        const double gz = (row[a + zUp] - row[a - zDown]) * sz;
+        g2[static_cast<std::size_t>(a + n * (b + n * d))] = gx * gx + gy * gy + gz * gz;
+      }
+    }
   constexpr double margin2 = kMarginVoxels * kMarginVoxels;
   Interval interval;
+  for (std::size_t i = 0; i < r.size(); ++i)
+    if (r[i] * r[i] > margin2 * g2[i]) interval.add(r[i] > 0, patchValue[i], patchBasis[i]);
+  // Faces of the cell that are not bounding planes (no crossing on their edges): the cell across has no patch
+  // there or none that joins this one, so a wrong sign on the face itself would show as a sheet, and the
+  // lattice above stays inset from the faces. Their face lattices are checked too.
+  constexpr int nf = kFaceLattice;
+  struct OpenFace {
+    int face;
+    std::array<double, nf * nf> r, g2, value, basis;
+  };
+  std::array<OpenFace, 6> open;
+  int numOpen = 0;
+  for (int f = 0; f < 6; ++f) {
+    if ((patch.faceMask >> f) & 1) continue;
+    OpenFace& o = open[static_cast<std::size_t>(numOpen++)];
+    o.face = f;
+    referenceFaceLattice<nf>(ref, f, o.r, o.g2);
+    patchFaceLattice<nf>(patch, f, o.value, o.basis);
+    for (std::size_t i = 0; i < o.r.size(); ++i)
+      if (o.r[i] * o.r[i] > margin2 * o.g2[i]) interval.add(o.r[i] > 0, o.value[i], o.basis[i]);
+  }
+  // Least-squares fit to the reference surface points between lattice neighbours along the fit axis (linear
+  // interpolation of the reference), where the patch is evaluated exactly.
   double num = 0, den = 0;
   int fitCount = 0;
-  for (int d = 0; d < n; ++d)
-    for (int b = 0; b < n; ++b)
-      for (int a = 0; a < n; ++a) {
-        const std::array<int, 3> i{a, b, d};
-        const int idx = a + n * (b + n * d);
-        const double value = r[static_cast<std::size_t>(idx)];
-        double g2 = 0;
-        for (int k = 0; k < 3; ++k) {
-          double diff = (r[static_cast<std::size_t>(idx + (above[i[k]] - i[k]) * stride[k])] -
-                         r[static_cast<std::size_t>(idx + (below[i[k]] - i[k]) * stride[k])]) *
-                        inverseSpan[i[k]] * ref.metric[k];
-          g2 += diff * diff;
-        }
-        if (value * value > margin2 * g2) {
-          interval.add(value > 0, patchValue[static_cast<std::size_t>(idx)],
-                       patchBasis[static_cast<std::size_t>(idx)]);
-        }
-        // Reference surface points between lattice neighbours along the axis closest to the surface normal
-        // (linear interpolation of the reference) for the least-squares fit of the central coefficient.
-        if (i[fitAxis] + 1 >= n) continue;
-        const std::size_t j = static_cast<std::size_t>(idx + stride[fitAxis]);
-        const double other = r[j];
-        if ((value > 0) == (other > 0)) continue;
-        Vec3 q(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n));
-        q[fitAxis] += value / (value - other) * latticeStep(n);
-        const double basis = patch.centralBasis(q);
-        num += patch.valueWithoutCentral(q) * basis;
+  for (int q = 0; q < n; ++q)
+    for (int p = 0; p < n; ++p)
+      for (int i = 0; i + 1 < n; ++i) {
+        const double r0 = r[static_cast<std::size_t>(lines.index(i, p, q))];
+        const double r1 = r[static_cast<std::size_t>(lines.index(i + 1, p, q))];
+        if ((r0 > 0) == (r1 > 0)) continue;
+        double basis;
+        const double v = lines.at(latticeCoord(i, n) + r0 / (r0 - r1) * latticeStep(n), p, q, basis);
+        num += v * basis;
         den += basis * basis;
         ++fitCount;
       }
   CellResult out;
   const double cCentre = patch.centralBasis(Vec3(0.5, 0.5, 0.5));
   den += kRidge * cCentre * cCentre * std::max(1, fitCount);
-  double w = fitCount > 0 ? -num / den : 0.0;
-  interval.finish();
+  const double w = fitCount > 0 ? -num / den : 0.0;
+  // Samples within the margin by the first-order estimate are left free, but where the clamped coefficient
+  // gives one of them the wrong sign, the estimate is checked by Newton steps on the reference; a sample that
+  // turns out farther from the surface joins the constraints. Wrong signs are rare, so this costs little.
+  for (int pass = 0; pass < 4; ++pass) {
+    if (!interval.feasible()) break;
+    const double central = interval.clamp(w);
+    bool added = false;
+    auto verify = [&](const Vec3& x, double rv, double a, double b) {
+      const double v = a + central * b;
+      if ((v > 0) == (rv > 0) || v == 0) return;
+      if (referenceSurfaceWithin(ref, x, rv, kVerifiedVoxels)) return;
+      interval.add(rv > 0, a, b);
+      added = true;
+    };
+    for (int d = 0; d < n; ++d)
+      for (int b = 0; b < n; ++b)
+        for (int a = 0; a < n; ++a) {
+          const std::size_t i = static_cast<std::size_t>(a + n * (b + n * d));
+          if (r[i] * r[i] > margin2 * g2[i]) continue;
+          verify(Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)), r[i], patchValue[i],
+                 patchBasis[i]);
+        }
+    for (int k = 0; k < numOpen; ++k) {
+      const OpenFace& o = open[static_cast<std::size_t>(k)];
+      const auto uv = cube::otherAxes(cube::faceAxis(o.face));
+      for (int b = 0; b < nf; ++b)
+        for (int a = 0; a < nf; ++a) {
+          const std::size_t i = static_cast<std::size_t>(a + nf * b);
+          if (o.r[i] * o.r[i] > margin2 * o.g2[i]) continue;
+          Vec3 x;
+          x[cube::faceAxis(o.face)] = cube::faceSide(o.face);
+          x[uv[0]] = latticeCoord(a, nf);
+          x[uv[1]] = latticeCoord(b, nf);
+          verify(x, o.r[i], o.value[i], o.basis[i]);
+        }
+    }
+    if (!added) break;
+  }
   out.ok = interval.feasible();
   out.central = out.ok ? interval.clamp(w) : 0.0;
   if (!std::isfinite(out.central)) out.central = 0;
@@ -514,21 +784,38 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
   };
   std::array<double, 4> s;
   for (int i = 0; i < 4; ++i) s[i] = sample(along(i - 1)) - isovalue;
-  auto cubic = [&](double t) {
-    double w[4];
-    catmullRom(t, w, nullptr);
-    return w[0] * s[0] + w[1] * s[1] + w[2] * s[2] + w[3] * s[3];
-  };
+  // The Catmull-Rom cubic through the four samples in powers of t (one variable on [0, 1], coefficients of
+  // the size of the samples: no cancellation to fear), evaluated by Horner.
+  const double k0 = s[1], k1 = 0.5 * (s[2] - s[0]), k2 = s[0] - 2.5 * s[1] + 2 * s[2] - 0.5 * s[3],
+               k3 = 0.5 * (s[3] - s[0]) + 1.5 * (s[1] - s[2]);
+  auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
+  auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
   const double tLinear = linearCrossing(s[1], s[2], 0.0);
-  // All sign changes of the cubic on [0,1] (16 brackets), each refined by bisection; keep the one nearest the
-  // linear crossing. The end values bracket the isovalue, so there is at least one.
+  // All sign changes of the cubic on [0,1] (16 brackets), each refined by Newton steps kept inside the
+  // bracket (bisection when a step leaves it); keep the root nearest the linear crossing. The end values
+  // bracket the isovalue, so there is at least one.
   constexpr int kBrackets = 16;
   double best = tLinear, bestGap = kInf;
   double t0 = 0, c0 = s[1];
   for (int b = 1; b <= kBrackets; ++b) {
     double t1 = static_cast<double>(b) / kBrackets, c1 = b == kBrackets ? s[2] : cubic(t1);
     if ((c0 > 0) != (c1 > 0)) {
-      double root = bisectSignChange(cubic, t0, t1, c0, 44);  // bracket width 2^-48
+      double lo = t0, hi = t1, fLo = c0, t = 0.5 * (t0 + t1);
+      for (int it = 0; it < 60 && hi - lo > 0x1p-50; ++it) {
+        const double ft = cubic(t);
+        if (ft == 0) break;
+        if ((ft > 0) == (fLo > 0)) {
+          lo = t;
+          fLo = ft;
+        } else {
+          hi = t;
+        }
+        const double d = slope(t), next = d != 0 ? t - ft / d : lo;
+        const double step = std::abs(next - t);
+        t = next > lo && next < hi ? next : 0.5 * (lo + hi);
+        if (step < 0x1p-50) break;
+      }
+      const double root = t;
       if (std::abs(root - tLinear) < bestGap) {
         bestGap = std::abs(root - tLinear);
         best = root;
@@ -563,6 +850,13 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
   FittingStats stats;
   const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
   if (numCells == 0) return stats;
+  auto T0 = std::chrono::steady_clock::now();
+  auto lap = [&](const char* what) {
+    auto t = std::chrono::steady_clock::now();
+    if (getenv("CIP_T"))
+      fprintf(stderr, "%s %.2f ms\n", what, std::chrono::duration<double>(t - T0).count() * 1e3);
+    T0 = t;
+  };
   // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
   std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
   for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
@@ -623,7 +917,9 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
   std::vector<std::uint8_t> faceOk(faces.size(), 1), cellOk(numCells, 1);
   std::vector<double> faceCoefficient(faces.size(), 0.0);
   auto cellVertex = [&](std::size_t c, int k) { return model.corners[model.cells[c].firstCorner + k]; };
+  lap("setup");
   for (int round = 0;; ++round) {
+    if (round) lap("round");
     stats.rounds = round + 1;
     tbb::parallel_for(std::size_t(0), numVertices, [&](std::size_t v) {
       double beta = kBlend[level[v]];
@@ -693,12 +989,18 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
       if (faceDirty[i])
         for (int s = 0; s < faces[i].count; ++s) cellDirty[faces[i].cell[s]] = 1;
   }
+  lap("last round");
   for (std::size_t v = 0; v < numVertices; ++v) {
     stats.blendedVertices += level[v] > 0;
     ++stats.levelCount[level[v]];
   }
   for (auto ok : faceOk) stats.failedFaces += !ok;
   for (auto ok : cellOk) stats.failedCells += !ok;
+  for (std::size_t i = 0; i < faces.size(); ++i)
+    if (!faceOk[i])
+      for (int s = 0; s < faces[i].count; ++s) cellOk[faces[i].cell[s]] = 0;
+  for (std::size_t c = 0; c < numCells; ++c)
+    if (!cellOk[c]) stats.unresolvedCells.push_back(static_cast<std::uint32_t>(c));
   return stats;
 }
 

@@ -24,6 +24,7 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <vector>
 
 #include "cip/model.h"
 
@@ -82,6 +83,9 @@ struct FittingStats {
   std::size_t failedFaces = 0;      ///< faces still without a sign-correct coefficient at the last level
   std::size_t failedCells = 0;      ///< cells still without a sign-correct central coefficient
   std::array<std::size_t, 5> levelCount{};  ///< isovertices per final blend level
+  /// Cells (model indices, ascending) that end without a sign-correct central coefficient or touch a face
+  /// that ends without a sign-correct side coefficient: where the checks could not be met.
+  std::vector<std::uint32_t> unresolvedCells;
 };
 
 /// Replaces the side and central coefficients and the corner-plane normals of a model built with the paper's

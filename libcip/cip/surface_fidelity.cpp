@@ -27,6 +27,26 @@ Vec3 project(const ScalarField& f, double iso, Vec3 p) {
   return p;
 }
 
+/// Whether the true surface passes within `radius` (world) of w, where truth - iso = fw != 0. A Newton
+/// projection that lands on the surface within the radius proves it (the landing point is a surface point,
+/// so the distance is at most that far); otherwise a ball of points 1/8 of the radius apart is searched for
+/// the other sign. (Newton alone can land on a farther part of the surface than the nearest one, and then
+/// overstates the distance.)
+bool surfaceWithin(const ScalarField& truth, double iso, const Vec3& w, double fw, double radius) {
+  const Vec3 p = project(truth, iso, w);
+  const double pv = truth.value(p) - iso;
+  if ((p - w).norm() <= radius && std::abs(pv) <= 1e-9 * std::max(1.0, std::abs(fw))) return true;
+  constexpr int k = 8;
+  const double step = radius / k;
+  for (int a = -k; a <= k; ++a)
+    for (int b = -k; b <= k; ++b)
+      for (int d = -k; d <= k; ++d) {
+        if (a * a + b * b + d * d > k * k) continue;
+        if ((truth.value(w + step * Vec3(a, b, d)) - iso > 0) != (fw > 0)) return true;
+      }
+  return false;
+}
+
 Mat3 fieldHessian(const ScalarField& f, const Vec3& p, double h) {
   Mat3 m;
   for (int i = 0; i < 3; ++i) {
@@ -214,7 +234,7 @@ std::int64_t countSpuriousCells(const Model& model, const ScalarField& truth, in
           double v = p.value(local);
           if ((f > 0) == (v > 0) || v == 0) continue;
           // Disagreement: count it only far from the true surface.
-          if ((project(truth, iso, w) - w).norm() > margin * voxel) bad[c] = 1;
+          if (!surfaceWithin(truth, iso, w, f, margin * voxel)) bad[c] = 1;
         }
   });
   std::int64_t n = 0;
