@@ -92,8 +92,9 @@ TEST(FittedPatches, ModelFileRoundTripKeepsMethod) {
 }
 
 TEST(CubicEdgeVertex, ExactRootAndGradientOfAQuadraticField) {
-  // Quadratic along x, linear across: the Catmull-Rom cubic reproduces quadratics, central differences
-  // reproduce the linear part, so the edge root and the normal are exact.
+  // Quadratic along x, linear across: central differences are exact for quadratics (and the limiter does not
+  // act: the samples increase along x with no difference more than 5 times another), so the Hermite cubic
+  // along the edge reproduces the quadratic, and the root and the normal are exact.
   DenseGrid g;
   g.allocate({6, 4, 4});
   auto f = [](double x, double y, double z) { return 0.1 * (x - 2.3) * (x + 1.0) + 0.05 * y - 0.02 * z; };

@@ -12,6 +12,7 @@
 
 #include "cip/cube_topology.h"
 #include "cip/patch_coefficients.h"
+#include "cip/tricubic_reference.h"
 
 namespace cip {
 
@@ -22,8 +23,9 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 /// Blend levels of a corner-plane normal: n = normalize((1 - beta) n_gradient + beta e_edge).
 constexpr std::array<double, 5> kBlend{0.0, 0.25, 0.5, 0.75, 1.0};
 constexpr int kMaxLevel = static_cast<int>(kBlend.size()) - 1;
-/// Samples per axis of the sign checks: face lattice (kFaceLattice^2) and cell lattice (kCellLattice^3).
-constexpr int kFaceLattice = 7, kCellLattice = 6;
+/// Samples per axis of the sign checks: face lattice (kFaceLattice^2), cell lattice (kCellLattice^3) and the
+/// lattice on the faces of a cell that are not bounding planes (kOpenFaceLattice^2).
+constexpr int kFaceLattice = 7, kCellLattice = 6, kOpenFaceLattice = 5;
 /// Samples closer than this to the reference surface (first-order estimate |f| / |grad f|, voxels) are not
 /// checked.
 constexpr double kMarginVoxels = 0.35;
@@ -40,46 +42,9 @@ constexpr double latticeCoord(int i, int n) {
 /// Samples within kMarginVoxels of the reference surface by the first-order estimate are checked anyway if
 /// the patch gives them the wrong sign and Newton steps on the reference do not reach its surface within this
 /// many voxels (the margin of countSpuriousCells is 0.5).
-constexpr double kVerifiedVoxels = 0.45;
-/// Samples per uncrossed face border of the border checks (see fitFace).
-constexpr int kBorderSamples = 12;
+constexpr double kVerifiedVoxels = 0.3;
 /// Weight of the ridge term of the coefficient fits (relative to a fit point at the cell or face centre).
 constexpr double kRidge = 1e-3;
-
-/// Catmull-Rom weights for samples at -1, 0, 1, 2 and their derivatives, at t in [0, 1].
-void catmullRom(double t, double* w, double* d) {
-  double t2 = t * t, t3 = t2 * t;
-  w[0] = 0.5 * (-t3 + 2 * t2 - t);
-  w[1] = 0.5 * (3 * t3 - 5 * t2 + 2);
-  w[2] = 0.5 * (-3 * t3 + 4 * t2 + t);
-  w[3] = 0.5 * (t3 - t2);
-  if (d) {
-    d[0] = 0.5 * (-3 * t2 + 4 * t - 1);
-    d[1] = 0.5 * (9 * t2 - 10 * t);
-    d[2] = 0.5 * (-9 * t2 + 8 * t + 1);
-    d[3] = 0.5 * (3 * t2 - 2 * t);
-  }
-}
-
-std::int64_t clampIndex(std::int64_t i, std::int64_t n) {
-  return std::clamp<std::int64_t>(i, 0, n - 1);
-}
-
-/// Sample at grid point p, extended linearly by one point beyond the grid along each axis (so that linear
-/// fields stay linear up to the border), clamped further out.
-double extendedSample(const DenseGrid& grid, std::array<std::int64_t, 3> p) {
-  const auto& dims = grid.geometry.dims;
-  for (int a = 0; a < 3; ++a) {
-    if (dims[a] >= 2 && (p[a] == -1 || p[a] == dims[a])) {
-      auto inner = p, next = p;
-      inner[a] = p[a] < 0 ? 0 : dims[a] - 1;
-      next[a] = p[a] < 0 ? 1 : dims[a] - 2;
-      return 2 * extendedSample(grid, inner) - extendedSample(grid, next);
-    }
-  }
-  for (int a = 0; a < 3; ++a) p[a] = clampIndex(p[a], dims[a]);
-  return grid.at(p[0], p[1], p[2]);
-}
 
 /// Interval of a coefficient w with sign(s) * (a + w b) > 0 for all added constraints (b >= 0).
 struct Interval {
@@ -105,12 +70,12 @@ struct Interval {
   }
 };
 
-/// Catmull-Rom weights and their derivatives at the n lattice coordinates (the same on every axis).
+/// Hermite weights and their derivatives at the n lattice coordinates (the same on every axis).
 template <int n>
 struct LatticeWeights {
   double w[n][4], d[n][4];
   LatticeWeights() {
-    for (int i = 0; i < n; ++i) catmullRom(latticeCoord(i, n), w[i], d[i]);
+    for (int i = 0; i < n; ++i) hermiteWeights(latticeCoord(i, n), w[i], d[i]);
   }
   static const LatticeWeights& get() {
     static const LatticeWeights weights;
@@ -134,7 +99,7 @@ void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n
   double ax[n][16], bxy[n * n][4];
   for (int a = 0; a < n; ++a)
     for (int jk = 0; jk < 16; ++jk) {
-      const double* row = &ref.samples[static_cast<std::size_t>(4 * jk)];
+      const double* row = &ref.hermite[static_cast<std::size_t>(4 * jk)];
       ax[a][jk] = w[a][0] * row[0] + w[a][1] * row[1] + w[a][2] * row[2] + w[a][3] * row[3];
     }
   for (int b = 0; b < n; ++b)
@@ -169,17 +134,15 @@ void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n 
       }
     return;
   }
-  // In-plane samples (node 1 + side across the face) and the across-face derivative at the node.
+  // In-plane Hermite data on the face and the across-face derivative there.
   constexpr int stride[3] = {1, 4, 16};
   const int su = stride[uv[0]], sv = stride[uv[1]], sn = stride[axis];
-  const double dNode[2][4] = {{-0.5, 0, 0.5, 0}, {0, -0.5, 0, 0.5}};
   double p0[4][4], p1[4][4];
   for (int jb = 0; jb < 4; ++jb)
     for (int ia = 0; ia < 4; ++ia) {
-      const double* column = &ref.samples[static_cast<std::size_t>(ia * su + jb * sv)];
-      p0[ia][jb] = column[(1 + side) * sn];
-      p1[ia][jb] = dNode[side][0] * column[0] + dNode[side][1] * column[sn] +
-                   dNode[side][2] * column[2 * sn] + dNode[side][3] * column[3 * sn];
+      const double* column = &ref.hermite[static_cast<std::size_t>(ia * su + jb * sv)];
+      p0[ia][jb] = column[2 * side * sn];
+      p1[ia][jb] = column[(2 * side + 1) * sn];
     }
   const LatticeWeights<n>& lw = LatticeWeights<n>::get();
   double a0[n][4], ad[n][4], a1[n][4];
@@ -208,53 +171,6 @@ void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n 
       value[static_cast<std::size_t>(a + n * b)] = v - ref.isovalue;
       gradient2[static_cast<std::size_t>(a + n * b)] = gu * gu + gv * gv + gn * gn;
     }
-}
-
-/// Reference values and squared gradients (smallest-voxel units) at m points latticeCoord(i, m) along the
-/// cell edge along `axis` at cell-local coordinates `at` (0 or 1) of the other two axes. On a grid line the
-/// tricubic interpolant is the Catmull-Rom cubic of the samples along it, and its derivative across the line
-/// the cubic of their central differences, so this costs a few flops per point.
-template <int m>
-void referenceEdgeLine(const CellReference& ref, int axis, const std::array<int, 3>& at,
-                       std::array<double, m>& value, std::array<double, m>& gradient2) {
-  const auto other = cube::otherAxes(axis);
-  const Vec3& metric = ref.metric;
-  if (ref.field) {
-    for (int i = 0; i < m; ++i) {
-      Vec3 x(at[0], at[1], at[2]);
-      x[axis] = latticeCoord(i, m);
-      value[static_cast<std::size_t>(i)] = ref.value(x);
-      gradient2[static_cast<std::size_t>(i)] = ref.gradient(x).cwiseProduct(metric).squaredNorm();
-    }
-    return;
-  }
-  constexpr int stride[3] = {1, 4, 16};
-  const int base = (1 + at[other[0]]) * stride[other[0]] + (1 + at[other[1]]) * stride[other[1]];
-  double line[4], across[2][4];
-  for (int j = 0; j < 4; ++j) {
-    const int node = base + j * stride[axis];
-    line[j] = ref.samples[static_cast<std::size_t>(node)];
-    for (int k = 0; k < 2; ++k) {
-      const int s = stride[other[k]];
-      across[k][j] = 0.5 * (ref.samples[static_cast<std::size_t>(node + s)] -
-                            ref.samples[static_cast<std::size_t>(node - s)]);
-    }
-  }
-  const LatticeWeights<m>& lw = LatticeWeights<m>::get();
-  for (int i = 0; i < m; ++i) {
-    double v = 0, gl = 0, g0 = 0, g1 = 0;
-    for (int j = 0; j < 4; ++j) {
-      v += lw.w[i][j] * line[j];
-      gl += lw.d[i][j] * line[j];
-      g0 += lw.w[i][j] * across[0][j];
-      g1 += lw.w[i][j] * across[1][j];
-    }
-    gl *= metric[axis];
-    g0 *= metric[other[0]];
-    g1 *= metric[other[1]];
-    value[static_cast<std::size_t>(i)] = v - ref.isovalue;
-    gradient2[static_cast<std::size_t>(i)] = gl * gl + g0 * g0 + g1 * g1;
-  }
 }
 
 /// The patch on the lattice lines of a cell along one axis L (the other two axes at lattice coordinates):
@@ -493,28 +409,6 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& 
   for (std::size_t i = 0; i < r.size(); ++i)
     if (r[i] * r[i] > kMarginVoxels * kMarginVoxels * rg2[i])
       interval.add(r[i] > 0, cornerPart[i], sideBasis[i]);
-  // Uncrossed borders of the face. When the cell's other face through such an edge is a bounding plane, the
-  // patch vanishes on the edge to second order and its sign next to it, in a wedge along the whole edge, is
-  // the sign of R + w D on the border line: checked densely along the line.
-  const int axis = cube::faceAxis(f);
-  const auto uv = cube::otherAxes(axis);
-  for (int k = 0; k < 4; ++k) {
-    if ((fc.crossed >> k) & 1) continue;
-    // Canonical edges 0, 1 run along u at v = 0, 1; edges 2, 3 along v at u = 0, 1.
-    const int along = k < 2 ? uv[0] : uv[1], fixed = k < 2 ? uv[1] : uv[0];
-    std::array<int, 3> at{};
-    at[static_cast<std::size_t>(axis)] = cube::faceSide(f);
-    at[static_cast<std::size_t>(fixed)] = k & 1;
-    std::array<double, kBorderSamples> lineValue, lineGradient2;
-    referenceEdgeLine<kBorderSamples>(ref, along, at, lineValue, lineGradient2);
-    for (int i = 0; i < kBorderSamples; ++i) {
-      const double rv = lineValue[static_cast<std::size_t>(i)];
-      if (!(rv * rv > kMarginVoxels * kMarginVoxels * lineGradient2[static_cast<std::size_t>(i)])) continue;
-      const double t = latticeCoord(i, kBorderSamples);
-      const FaceRestriction fr = faceRestriction(fc, k < 2 ? Vec2(t, k & 1) : Vec2(k & 1, t));
-      interval.add(rv > 0, fr.cornerPart, fr.sideBasis);
-    }
-  }
   // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
   double num = 0, den = 0;
   int fitCount = 0;
@@ -602,7 +496,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   // Faces of the cell that are not bounding planes (no crossing on their edges): the cell across has no patch
   // there or none that joins this one, so a wrong sign on the face itself would show as a sheet, and the
   // lattice above stays inset from the faces. Their face lattices are checked too.
-  constexpr int nf = kFaceLattice;
+  constexpr int nf = kOpenFaceLattice;
   struct OpenFace {
     int face;
     std::array<double, nf * nf> r, g2, value, basis;
@@ -683,168 +577,6 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
 }
 
 }  // namespace
-
-double CellReference::value(const Vec3& local) const {
-  if (field) return field->value(geometry->indexToWorld(origin + local)) - isovalue;
-  double wx[4], wy[4], wz[4];
-  catmullRom(local.x(), wx, nullptr);
-  catmullRom(local.y(), wy, nullptr);
-  catmullRom(local.z(), wz, nullptr);
-  double sum = 0;
-  for (int k = 0; k < 4; ++k) {
-    double plane = 0;
-    for (int j = 0; j < 4; ++j) {
-      const double* row = &samples[static_cast<std::size_t>(4 * (j + 4 * k))];
-      plane += wy[j] * (wx[0] * row[0] + wx[1] * row[1] + wx[2] * row[2] + wx[3] * row[3]);
-    }
-    sum += wz[k] * plane;
-  }
-  return sum - isovalue;
-}
-
-Vec3 CellReference::gradient(const Vec3& local) const {
-  if (field) return field->gradient(geometry->indexToWorld(origin + local)).cwiseProduct(geometry->spacing);
-  double w[3][4], d[3][4];
-  for (int a = 0; a < 3; ++a) catmullRom(local[a], w[a], d[a]);
-  Vec3 g = Vec3::Zero();
-  for (int k = 0; k < 4; ++k)
-    for (int j = 0; j < 4; ++j)
-      for (int i = 0; i < 4; ++i) {
-        double s = samples[static_cast<std::size_t>(i + 4 * (j + 4 * k))];
-        g.x() += d[0][i] * w[1][j] * w[2][k] * s;
-        g.y() += w[0][i] * d[1][j] * w[2][k] * s;
-        g.z() += w[0][i] * w[1][j] * d[2][k] * s;
-      }
-  return g;
-}
-
-CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
-                                double isovalue) {
-  CellReference ref;
-  ref.isovalue = isovalue;
-  const auto& dims = grid.geometry.dims;
-  if (cell[0] >= 1 && cell[1] >= 1 && cell[2] >= 1 && cell[0] + 2 < dims[0] && cell[1] + 2 < dims[1] &&
-      cell[2] + 2 < dims[2]) {
-    for (int k = 0; k < 4; ++k)
-      for (int j = 0; j < 4; ++j) {
-        const double* row =
-            &grid.values[static_cast<std::size_t>(grid.index(cell[0] - 1, cell[1] - 1 + j, cell[2] - 1 + k))];
-        std::copy(row, row + 4, ref.samples.begin() + 4 * (j + 4 * k));
-      }
-    return ref;
-  }
-  for (int k = 0; k < 4; ++k)
-    for (int j = 0; j < 4; ++j)
-      for (int i = 0; i < 4; ++i)
-        ref.samples[static_cast<std::size_t>(i + 4 * (j + 4 * k))] =
-            extendedSample(grid, {cell[0] - 1 + i, cell[1] - 1 + j, cell[2] - 1 + k});
-  return ref;
-}
-
-CellReference TricubicInterpolant::at(const Vec3& world, Vec3& local) const {
-  const Vec3 index = grid_.geometry.worldToIndex(world);
-  std::array<std::int64_t, 3> cell;
-  for (int a = 0; a < 3; ++a) {
-    const std::int64_t cells = std::max<std::int64_t>(1, grid_.geometry.dims[a] - 1);
-    const double lower = std::floor(index[a]);
-    cell[a] = std::isfinite(lower)
-                  ? std::clamp<std::int64_t>(
-                        static_cast<std::int64_t>(std::clamp(lower, -1.0, static_cast<double>(cells))), 0,
-                        cells - 1)
-                  : 0;
-    local[a] = index[a] - static_cast<double>(cell[a]);
-  }
-  return tricubicReference(grid_, cell, 0.0);
-}
-
-double TricubicInterpolant::value(const Vec3& world) const {
-  Vec3 local;
-  CellReference ref = at(world, local);
-  return ref.value(local);
-}
-
-Vec3 TricubicInterpolant::gradient(const Vec3& world) const {
-  Vec3 local;
-  CellReference ref = at(world, local);
-  return ref.gradient(local).cwiseQuotient(grid_.geometry.spacing);
-}
-
-double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
-                       double isovalue, Vec3& normal) {
-  const auto& dims = grid.geometry.dims;
-  const bool inside = point[0] >= 1 && point[1] >= 1 && point[2] >= 1 && point[0] + 2 < dims[0] &&
-                      point[1] + 2 < dims[1] && point[2] + 2 < dims[2];
-  auto sample = [&](const std::array<std::int64_t, 3>& p) {
-    return inside ? grid.at(p[0], p[1], p[2]) : extendedSample(grid, p);
-  };
-  auto along = [&](int s) {
-    auto p = point;
-    p[axis] += s;
-    return p;
-  };
-  std::array<double, 4> s;
-  for (int i = 0; i < 4; ++i) s[i] = sample(along(i - 1)) - isovalue;
-  // The Catmull-Rom cubic through the four samples in powers of t (one variable on [0, 1], coefficients of
-  // the size of the samples: no cancellation to fear), evaluated by Horner.
-  const double k0 = s[1], k1 = 0.5 * (s[2] - s[0]), k2 = s[0] - 2.5 * s[1] + 2 * s[2] - 0.5 * s[3],
-               k3 = 0.5 * (s[3] - s[0]) + 1.5 * (s[1] - s[2]);
-  auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
-  auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
-  const double tLinear = linearCrossing(s[1], s[2], 0.0);
-  // All sign changes of the cubic on [0,1] (16 brackets), each refined by Newton steps kept inside the
-  // bracket (bisection when a step leaves it); keep the root nearest the linear crossing. The end values
-  // bracket the isovalue, so there is at least one.
-  constexpr int kBrackets = 16;
-  double best = tLinear, bestGap = kInf;
-  double t0 = 0, c0 = s[1];
-  for (int b = 1; b <= kBrackets; ++b) {
-    double t1 = static_cast<double>(b) / kBrackets, c1 = b == kBrackets ? s[2] : cubic(t1);
-    if ((c0 > 0) != (c1 > 0)) {
-      double lo = t0, hi = t1, fLo = c0, t = 0.5 * (t0 + t1);
-      for (int it = 0; it < 60 && hi - lo > 0x1p-50; ++it) {
-        const double ft = cubic(t);
-        if (ft == 0) break;
-        if ((ft > 0) == (fLo > 0)) {
-          lo = t;
-          fLo = ft;
-        } else {
-          hi = t;
-        }
-        const double d = slope(t), next = d != 0 ? t - ft / d : lo;
-        const double step = std::abs(next - t);
-        t = next > lo && next < hi ? next : 0.5 * (lo + hi);
-        if (step < 0x1p-50) break;
-      }
-      const double root = t;
-      if (std::abs(root - tLinear) < bestGap) {
-        bestGap = std::abs(root - tLinear);
-        best = root;
-      }
-    }
-    t0 = t1;
-    c0 = c1;
-  }
-  // Gradient of the tricubic interpolant at the root: along the edge, the cubic's derivative; across it, the
-  // cubic interpolation of central differences (one-sided at the grid border).
-  double w[4], d[4];
-  catmullRom(best, w, d);
-  Vec3 g = Vec3::Zero();
-  for (int i = 0; i < 4; ++i) g[axis] += d[i] * s[i];
-  for (int other : cube::otherAxes(axis)) {
-    for (int i = 0; i < 4; ++i) {
-      auto p = along(i - 1);
-      p[axis] = clampIndex(p[axis], dims[axis]);
-      auto lo = p, hi = p;
-      if (lo[other] > 0) --lo[other];
-      if (hi[other] + 1 < dims[other]) ++hi[other];
-      double span = static_cast<double>(hi[other] - lo[other]);
-      if (span > 0) g[other] += w[i] * (sample(hi) - sample(lo)) / span;
-    }
-  }
-  Vec3 towardsPositive = Vec3::Unit(axis) * (s[2] > 0 ? 1.0 : -1.0);
-  normal = orientCornerNormal(g, towardsPositive);
-  return best;
-}
 
 FittingStats fitModelPatches(Model& model, const std::function<CellReference(std::size_t)>& reference) {
   FittingStats stats;

@@ -3,14 +3,13 @@
 /// a reference surface under sign constraints, with corner-plane normals blended towards the edge direction
 /// only where a face or cell cannot be made sign-correct.
 ///
-/// Reference: the analytic field (NormalMode::Exact), else the Catmull-Rom tricubic interpolant of the
-/// samples. Every decision uses data that all cells sharing it see identically:
-///  - isovertex (NormalMode::Gradient): root of the Catmull-Rom cubic along the grid edge, normal = gradient
-///  of the
-///    tricubic interpolant there (a function of the grid edge's neighbourhood only, shared by its 4 cells);
+/// Reference: the analytic field (NormalMode::Exact), else the monotone tricubic Hermite interpolant of the
+/// samples (tricubic_reference.h). Every decision uses data that all cells sharing it see identically:
+///  - isovertex (NormalMode::Gradient): root of the reference along the grid edge, normal = its gradient
+///  there
+///    (a function of the grid edge's neighbourhood only, shared by its 4 cells);
 ///  - side coefficient w_f: computed once per grid face from the reference on that face, in the face's
-///  canonical
-///    frame (faceCrossingsOf), and copied to both cells;
+///    canonical frame (faceCrossingsOf), and copied to both cells;
 ///  - central coefficient: per cell.
 /// On each face, w_f is the least-squares fit of the face curve to reference face-curve points, clamped into
 /// the interval of w for which the face restriction has the reference's sign at every face sample lying more
@@ -27,55 +26,9 @@
 #include <vector>
 
 #include "cip/model.h"
+#include "cip/tricubic_reference.h"
 
 namespace cip {
-
-/// The reference scalar field (value - isovalue) near one cell, in cell-local index coordinates.
-struct CellReference {
-  /// Analytic field (world coordinates); when null, the tricubic interpolant of `samples` is used.
-  const ScalarField* field = nullptr;
-  const GridGeometry* geometry = nullptr;
-  Vec3 origin = Vec3::Zero();  ///< cell origin, index coordinates
-  double isovalue = 0;
-  /// Per-axis factors turning index-space gradient components into gradients per smallest grid spacing: the
-  /// sign checks measure distances in smallest voxels (spacing.minCoeff() / spacing), as countSpuriousCells
-  /// does.
-  Vec3 metric = Vec3::Ones();
-  /// Samples at cell-local grid points -1..2 per axis (x fastest), extended linearly one point beyond the
-  /// grid.
-  std::array<double, 64> samples{};
-
-  double value(const Vec3& local) const;
-  /// Gradient per local (index) unit.
-  Vec3 gradient(const Vec3& local) const;
-};
-
-/// Gathers a cell's tricubic stencil from a dense grid: `cell` is the cell's lowest point in the grid's own
-/// indices; a point one step outside the grid is extrapolated linearly along that axis (linear fields stay
-/// exact).
-CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
-                                double isovalue);
-
-/// The Catmull-Rom tricubic interpolant of a dense grid as a field in world coordinates: the reference
-/// surface of PatchMethod::Fitted for sampled volumes, usable with countSpuriousCells and measureFidelity.
-/// Points outside the grid are evaluated in the nearest cell (extrapolated). The grid must outlive the field.
-class TricubicInterpolant : public ScalarField {
- public:
-  explicit TricubicInterpolant(const DenseGrid& grid) : grid_(grid) {}
-  double value(const Vec3& world) const override;
-  Vec3 gradient(const Vec3& world) const override;
-
- private:
-  CellReference at(const Vec3& world, Vec3& local) const;
-  const DenseGrid& grid_;
-};
-
-/// Isovertex on the grid edge from `point` (grid indices) along `axis`: the root of the Catmull-Rom cubic
-/// through the four samples along the edge's line nearest to the linear crossing, and the gradient of the
-/// Catmull-Rom tricubic interpolant there (index space, oriented with orientCornerNormal). The end values
-/// must bracket the isovalue. Returns the edge parameter in [0,1] and sets `normal`.
-double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
-                       double isovalue, Vec3& normal);
 
 struct FittingStats {
   int rounds = 0;                   ///< rounds run (1 = no face or cell needed a blended normal)

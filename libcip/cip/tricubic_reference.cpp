@@ -1,0 +1,228 @@
+#include "cip/tricubic_reference.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "cip/cube_topology.h"
+
+namespace cip {
+
+namespace {
+
+std::int64_t clampIndex(std::int64_t i, std::int64_t n) {
+  return std::clamp<std::int64_t>(i, 0, n - 1);
+}
+
+/// Sample at grid point p, extended linearly by one point beyond the grid along each axis (so that linear
+/// fields stay linear up to the border), clamped further out.
+double extendedSample(const DenseGrid& grid, std::array<std::int64_t, 3> p) {
+  const auto& dims = grid.geometry.dims;
+  for (int a = 0; a < 3; ++a) {
+    if (dims[a] >= 2 && (p[a] == -1 || p[a] == dims[a])) {
+      auto inner = p, next = p;
+      inner[a] = p[a] < 0 ? 0 : dims[a] - 1;
+      next[a] = p[a] < 0 ? 1 : dims[a] - 2;
+      return 2 * extendedSample(grid, inner) - extendedSample(grid, next);
+    }
+  }
+  for (int a = 0; a < 3; ++a) p[a] = clampIndex(p[a], dims[a]);
+  return grid.at(p[0], p[1], p[2]);
+}
+
+/// Derivative at a sample from the differences to its neighbours (left = s - s_prev, right = s_next - s):
+/// their mean, zero at a local extremum, at most three times the smaller difference (Hyman's filter).
+double limitedSlope(double left, double right) {
+  // Written with selects rather than branches: the conditions follow the data, so branches mispredict.
+  const double centred = 0.5 * (left + right);
+  const double magnitude = std::min(std::abs(centred), 3 * std::min(std::abs(left), std::abs(right)));
+  const double limited = std::copysign(magnitude, centred);
+  return left * right > 0 ? limited : 0.0;
+}
+
+/// Turns the 4x4x4 samples at cell-local points -1..2 into the cell's Hermite data, one axis at a time. A
+/// line of values (all its other indices already values, or samples) gets limited derivatives; a line of
+/// derivatives gets central differences (mixed derivatives).
+void samplesToHermite(std::array<double, 64>& data) {
+  constexpr int stride[3] = {1, 4, 16};
+  for (int axis = 0; axis < 3; ++axis) {
+    const auto other = cube::otherAxes(axis);
+    for (int q = 0; q < 4; ++q)
+      for (int p = 0; p < 4; ++p) {
+        const int base = p * stride[other[0]] + q * stride[other[1]];
+        // Indices of axes converted before this one are Hermite kinds (odd = derivative).
+        const bool values = !((other[0] < axis && (p & 1)) || (other[1] < axis && (q & 1)));
+        double s[4];
+        for (int i = 0; i < 4; ++i) s[i] = data[static_cast<std::size_t>(base + i * stride[axis])];
+        const double d1 = values ? limitedSlope(s[1] - s[0], s[2] - s[1]) : 0.5 * (s[2] - s[0]);
+        const double d2 = values ? limitedSlope(s[2] - s[1], s[3] - s[2]) : 0.5 * (s[3] - s[1]);
+        const double out[4] = {s[1], d1, s[2], d2};
+        for (int i = 0; i < 4; ++i) data[static_cast<std::size_t>(base + i * stride[axis])] = out[i];
+      }
+  }
+}
+
+}  // namespace
+
+void hermiteWeights(double t, double* w, double* d) {
+  const double t2 = t * t, t3 = t2 * t;
+  w[0] = 2 * t3 - 3 * t2 + 1;
+  w[1] = t3 - 2 * t2 + t;
+  w[2] = -2 * t3 + 3 * t2;
+  w[3] = t3 - t2;
+  if (d) {
+    d[0] = 6 * t2 - 6 * t;
+    d[1] = 3 * t2 - 4 * t + 1;
+    d[2] = -6 * t2 + 6 * t;
+    d[3] = 3 * t2 - 2 * t;
+  }
+}
+
+double CellReference::value(const Vec3& local) const {
+  if (field) return field->value(geometry->indexToWorld(origin + local)) - isovalue;
+  double wx[4], wy[4], wz[4];
+  hermiteWeights(local.x(), wx, nullptr);
+  hermiteWeights(local.y(), wy, nullptr);
+  hermiteWeights(local.z(), wz, nullptr);
+  double sum = 0;
+  for (int k = 0; k < 4; ++k) {
+    double plane = 0;
+    for (int j = 0; j < 4; ++j) {
+      const double* row = &hermite[static_cast<std::size_t>(4 * (j + 4 * k))];
+      plane += wy[j] * (wx[0] * row[0] + wx[1] * row[1] + wx[2] * row[2] + wx[3] * row[3]);
+    }
+    sum += wz[k] * plane;
+  }
+  return sum - isovalue;
+}
+
+Vec3 CellReference::gradient(const Vec3& local) const {
+  if (field) return field->gradient(geometry->indexToWorld(origin + local)).cwiseProduct(geometry->spacing);
+  double w[3][4], d[3][4];
+  for (int a = 0; a < 3; ++a) hermiteWeights(local[a], w[a], d[a]);
+  Vec3 g = Vec3::Zero();
+  for (int k = 0; k < 4; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 4; ++i) {
+        const double s = hermite[static_cast<std::size_t>(i + 4 * (j + 4 * k))];
+        g.x() += d[0][i] * w[1][j] * w[2][k] * s;
+        g.y() += w[0][i] * d[1][j] * w[2][k] * s;
+        g.z() += w[0][i] * w[1][j] * d[2][k] * s;
+      }
+  return g;
+}
+
+CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
+                                double isovalue) {
+  CellReference ref;
+  ref.isovalue = isovalue;
+  const auto& dims = grid.geometry.dims;
+  if (cell[0] >= 1 && cell[1] >= 1 && cell[2] >= 1 && cell[0] + 2 < dims[0] && cell[1] + 2 < dims[1] &&
+      cell[2] + 2 < dims[2]) {
+    for (int k = 0; k < 4; ++k)
+      for (int j = 0; j < 4; ++j) {
+        const double* row =
+            &grid.values[static_cast<std::size_t>(grid.index(cell[0] - 1, cell[1] - 1 + j, cell[2] - 1 + k))];
+        std::copy(row, row + 4, ref.hermite.begin() + 4 * (j + 4 * k));
+      }
+  } else {
+    for (int k = 0; k < 4; ++k)
+      for (int j = 0; j < 4; ++j)
+        for (int i = 0; i < 4; ++i)
+          ref.hermite[static_cast<std::size_t>(i + 4 * (j + 4 * k))] =
+              extendedSample(grid, {cell[0] - 1 + i, cell[1] - 1 + j, cell[2] - 1 + k});
+  }
+  samplesToHermite(ref.hermite);
+  return ref;
+}
+
+CellReference TricubicInterpolant::at(const Vec3& world, Vec3& local) const {
+  const Vec3 index = grid_.geometry.worldToIndex(world);
+  std::array<std::int64_t, 3> cell;
+  for (int a = 0; a < 3; ++a) {
+    const std::int64_t cells = std::max<std::int64_t>(1, grid_.geometry.dims[a] - 1);
+    const double lower = std::floor(index[a]);
+    cell[a] = std::isfinite(lower)
+                  ? std::clamp<std::int64_t>(
+                        static_cast<std::int64_t>(std::clamp(lower, -1.0, static_cast<double>(cells))), 0,
+                        cells - 1)
+                  : 0;
+    local[a] = index[a] - static_cast<double>(cell[a]);
+  }
+  return tricubicReference(grid_, cell, 0.0);
+}
+
+double TricubicInterpolant::value(const Vec3& world) const {
+  Vec3 local;
+  CellReference ref = at(world, local);
+  return ref.value(local);
+}
+
+Vec3 TricubicInterpolant::gradient(const Vec3& world) const {
+  Vec3 local;
+  CellReference ref = at(world, local);
+  return ref.gradient(local).cwiseQuotient(grid_.geometry.spacing);
+}
+
+double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
+                       double isovalue, Vec3& normal) {
+  // A cell that has the edge: the edge at local coordinate 0 across each other axis where the grid allows.
+  const auto& dims = grid.geometry.dims;
+  std::array<std::int64_t, 3> cell = point;
+  Vec3 local = Vec3::Zero();
+  for (int other : cube::otherAxes(axis))
+    if (point[other] + 1 >= dims[other] && point[other] > 0) {
+      --cell[other];
+      local[other] = 1;
+    }
+  const CellReference ref = tricubicReference(grid, cell, isovalue);
+  // The reference along the edge: a cubic Hermite segment, in powers of t (one variable on [0, 1] with
+  // coefficients of the size of the data: no cancellation to fear), evaluated by Horner.
+  int base = 0;
+  constexpr int stride[3] = {1, 4, 16};
+  for (int other : cube::otherAxes(axis)) base += 2 * static_cast<int>(local[other]) * stride[other];
+  auto at = [&](int i) { return ref.hermite[static_cast<std::size_t>(base + i * stride[axis])]; };
+  const double v0 = at(0) - isovalue, d0 = at(1), v1 = at(2) - isovalue, d1 = at(3);
+  const double k0 = v0, k1 = d0, k2 = -3 * v0 - 2 * d0 + 3 * v1 - d1, k3 = 2 * v0 + d0 - 2 * v1 + d1;
+  auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
+  auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
+  const double tLinear = linearCrossing(v0, v1, 0.0);
+  // All sign changes on [0,1] (16 brackets; with limited derivatives the segment is monotone and there is
+  // one), each refined by Newton steps kept inside the bracket (bisection when a step leaves it); keep the
+  // root nearest the linear crossing. The end values bracket the isovalue, so there is at least one.
+  constexpr int kBrackets = 16;
+  double best = tLinear, bestGap = std::numeric_limits<double>::infinity();
+  double t0 = 0, c0 = v0;
+  for (int b = 1; b <= kBrackets; ++b) {
+    const double t1 = static_cast<double>(b) / kBrackets, c1 = b == kBrackets ? v1 : cubic(t1);
+    if ((c0 > 0) != (c1 > 0)) {
+      double lo = t0, hi = t1, fLo = c0, t = 0.5 * (t0 + t1);
+      for (int it = 0; it < 60 && hi - lo > 0x1p-50; ++it) {
+        const double ft = cubic(t);
+        if (ft == 0) break;
+        if ((ft > 0) == (fLo > 0)) {
+          lo = t;
+          fLo = ft;
+        } else {
+          hi = t;
+        }
+        const double d = slope(t), next = d != 0 ? t - ft / d : lo;
+        const double step = std::abs(next - t);
+        t = next > lo && next < hi ? next : 0.5 * (lo + hi);
+        if (step < 0x1p-50) break;
+      }
+      if (std::abs(t - tLinear) < bestGap) {
+        bestGap = std::abs(t - tLinear);
+        best = t;
+      }
+    }
+    t0 = t1;
+    c0 = c1;
+  }
+  local[axis] = best;
+  const Vec3 towardsPositive = Vec3::Unit(axis) * (v1 > 0 ? 1.0 : -1.0);
+  normal = orientCornerNormal(ref.gradient(local), towardsPositive);
+  return best;
+}
+
+}  // namespace cip

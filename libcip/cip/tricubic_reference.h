@@ -1,0 +1,81 @@
+/// @file tricubic_reference.h
+/// @brief The reference field of sampled volumes: a monotone tricubic Hermite interpolant of the samples.
+///
+/// PatchMethod::Fitted places isovertices on, takes corner normals from, and checks signs against this field
+/// (patch_fitting.h); the fidelity measures use it as the true surface of real volumes.
+///
+/// It is the tensor-product cubic Hermite interpolant whose derivatives at each grid point come from central
+/// differences of the samples, like Catmull-Rom, except that a first derivative along an axis is limited
+/// (Hyman's filter for Fritsch–Carlson monotone interpolation): zero where the samples on either side of the
+/// point both lie above or both below it (a local extremum along that grid line), and at most three times the
+/// smaller of the two one-sided differences elsewhere. Along every grid line the interpolant is then monotone
+/// between consecutive samples, so it crosses the isovalue on a grid edge exactly when the edge's end samples
+/// straddle it: its sign structure on the cell edges is the marching-cubes configuration's. Catmull-Rom
+/// overshoots next to steep steps (CT data: bone next to soft tissue) and then adds sheets inside cells that
+/// no patch with the cell's configuration can follow. Mixed derivatives are central differences of the
+/// limited first derivatives. All grid-point data depend only on the samples around that point, so the field
+/// is C1 across cells; linear fields are reproduced exactly, also at the volume border, where samples are
+/// extended linearly by one point.
+#pragma once
+#include <array>
+#include <cstdint>
+
+#include "cip/dense_grid.h"
+#include "cip/isovertex.h"
+
+namespace cip {
+
+/// Cubic Hermite basis on [0, 1] for the data (value at 0, derivative at 0, value at 1, derivative at 1): the
+/// weights w at t and, when d is not null, their derivatives.
+void hermiteWeights(double t, double* w, double* d);
+
+/// The reference scalar field (value - isovalue) near one cell, in cell-local index coordinates.
+struct CellReference {
+  /// Analytic field (world coordinates); when null, the tricubic Hermite interpolant in `hermite` is used.
+  const ScalarField* field = nullptr;
+  const GridGeometry* geometry = nullptr;
+  Vec3 origin = Vec3::Zero();  ///< cell origin, index coordinates
+  double isovalue = 0;
+  /// Per-axis factors turning index-space gradient components into gradients per smallest grid spacing: the
+  /// sign checks measure distances in smallest voxels (spacing.minCoeff() / spacing), as countSpuriousCells
+  /// does.
+  Vec3 metric = Vec3::Ones();
+  /// Hermite data of the cell, index i + 4 (j + 4 k) with one index per axis: 0 = at local coordinate 0,
+  /// 1 = derivative (per index unit) at 0, 2 = at 1, 3 = derivative at 1. Entry (0, 0, 0) is the sample at
+  /// the cell origin, (1, 0, 0) the x-derivative there, (1, 1, 0) the xy mixed derivative, and so on. The
+  /// field is sum over i, j, k of hermite[i + 4 (j + 4 k)] w_i(x) w_j(y) w_k(z) with hermiteWeights.
+  std::array<double, 64> hermite{};
+
+  double value(const Vec3& local) const;
+  /// Gradient per local (index) unit.
+  Vec3 gradient(const Vec3& local) const;
+};
+
+/// The reference of one cell of a dense grid: `cell` is the cell's lowest point in the grid's own indices. A
+/// point one step outside the grid is extrapolated linearly along that axis (linear fields stay exact).
+CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
+                                double isovalue);
+
+/// The reference interpolant of a dense grid as a field in world coordinates, usable with
+/// countSpuriousCells and measureFidelity. Points outside the grid are evaluated in the nearest cell
+/// (extrapolated). The grid must outlive the field.
+class TricubicInterpolant : public ScalarField {
+ public:
+  explicit TricubicInterpolant(const DenseGrid& grid) : grid_(grid) {}
+  double value(const Vec3& world) const override;
+  Vec3 gradient(const Vec3& world) const override;
+
+ private:
+  CellReference at(const Vec3& world, Vec3& local) const;
+  const DenseGrid& grid_;
+};
+
+/// Isovertex on the grid edge from `point` (grid indices) along `axis`: the root of the reference along the
+/// edge (a monotone cubic there; the root nearest the linear crossing should there be several), and the
+/// reference's gradient at it (index space, oriented with orientCornerNormal). The end values must bracket
+/// the isovalue. Returns the edge parameter in [0,1] and sets `normal`. Both depend only on the samples
+/// around the edge, so the four cells sharing it agree.
+double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
+                       double isovalue, Vec3& normal);
+
+}  // namespace cip
