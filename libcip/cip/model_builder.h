@@ -22,9 +22,10 @@ struct BuildOptions {
   double isovalue = 0;
   NormalMode normals = NormalMode::Gradient;
   CentralRule central = CentralRule::Zero;
-  /// Coefficient construction. PatchMethod::Fitted (patch_fitting.h) ignores `central`; with NormalMode::Gradient it
-  /// also places isovertices on the Catmull-Rom cubic along each edge, with the tricubic interpolant's gradient.
-  PatchMethod method = PatchMethod::Paper;
+  /// Coefficient construction. PatchMethod::Fitted (patch_fitting.h, the default) ignores `central`; with
+  /// NormalMode::Gradient it also places isovertices on the reference interpolant along each edge
+  /// (tricubic_reference.h), with its gradient. PatchMethod::Paper is the paper's construction.
+  PatchMethod method = PatchMethod::Fitted;
   /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took.
   FittingStats* fittingStats = nullptr;
   /// Analytic field sampled by the grid (world coordinates); required for NormalMode::Exact.
