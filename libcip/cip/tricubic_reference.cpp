@@ -187,9 +187,9 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
   auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
   auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
   const double tLinear = linearCrossing(v0, v1, 0.0);
-  // All sign changes on [0,1] (16 brackets; with limited derivatives the segment is monotone and there is
-  // one), each refined by Newton steps kept inside the bracket (bisection when a step leaves it); keep the
-  // root nearest the linear crossing. The end values bracket the isovalue, so there is at least one.
+  // All sign changes on [0,1] (16 brackets; the segment is monotone, so there is one), each refined by Newton
+  // steps kept inside the bracket (bisection when a step leaves it); keep the root nearest the linear
+  // crossing. The end values bracket the isovalue, so there is at least one.
   constexpr int kBrackets = 16;
   double best = tLinear, bestGap = std::numeric_limits<double>::infinity();
   double t0 = 0, c0 = v0;
@@ -206,10 +206,12 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
         } else {
           hi = t;
         }
-        const double d = slope(t), next = d != 0 ? t - ft / d : lo;
-        const double step = std::abs(next - t);
+        const double d = slope(t), next = d != 0 ? t - ft / d : 0.5 * (lo + hi);
+        if (std::abs(next - t) < 0x1p-50) {  // converged (the step may sit on a bracket end)
+          t = std::clamp(next, lo, hi);
+          break;
+        }
         t = next > lo && next < hi ? next : 0.5 * (lo + hi);
-        if (step < 0x1p-50) break;
       }
       if (std::abs(t - tLinear) < bestGap) {
         bestGap = std::abs(t - tLinear);
