@@ -4,10 +4,9 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
-#include <cstdio>
 #include <limits>
+#include <optional>
 #include <vector>
 
 #include "cip/cube_topology.h"
@@ -582,13 +581,6 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
   FittingStats stats;
   const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
   if (numCells == 0) return stats;
-  auto T0 = std::chrono::steady_clock::now();
-  auto lap = [&](const char* what) {
-    auto t = std::chrono::steady_clock::now();
-    if (getenv("CIP_T"))
-      fprintf(stderr, "%s %.2f ms\n", what, std::chrono::duration<double>(t - T0).count() * 1e3);
-    T0 = t;
-  };
   // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
   std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
   for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
@@ -649,22 +641,27 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
   std::vector<std::uint8_t> faceOk(faces.size(), 1), cellOk(numCells, 1);
   std::vector<double> faceCoefficient(faces.size(), 0.0);
   auto cellVertex = [&](std::size_t c, int k) { return model.corners[model.cells[c].firstCorner + k]; };
-  lap("setup");
   for (int round = 0;; ++round) {
-    if (round) lap("round");
     stats.rounds = round + 1;
     tbb::parallel_for(std::size_t(0), numVertices, [&](std::size_t v) {
       double beta = kBlend[level[v]];
       Vec3 n = (1 - beta) * baseNormal[v] + beta * edgeDirection[v];
       model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edgeDirection[v];
     });
+    // Faces by their computing cell, so that each cell's reference is built once for all of them.
     tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, faces.size(), 64), [&](const tbb::blocked_range<std::size_t>& r) {
-          for (std::size_t i = r.begin(); i != r.end(); ++i) {
-            if (!faceDirty[i]) continue;
-            FaceResult fr = fitFace(model, faces[i], loops[faces[i].cell[0]], reference(faces[i].cell[0]));
-            faceCoefficient[i] = fr.coefficient;
-            faceOk[i] = fr.ok;
+        tbb::blocked_range<std::size_t>(0, numCells, 32), [&](const tbb::blocked_range<std::size_t>& r) {
+          for (std::size_t c = r.begin(); c != r.end(); ++c) {
+            std::optional<CellReference> ref;
+            for (std::int32_t i : cellFaces[c]) {
+              if (i < 0 || faces[static_cast<std::size_t>(i)].cell[0] != c ||
+                  !faceDirty[static_cast<std::size_t>(i)])
+                continue;
+              if (!ref) ref = reference(c);
+              FaceResult fr = fitFace(model, faces[static_cast<std::size_t>(i)], loops[c], *ref);
+              faceCoefficient[static_cast<std::size_t>(i)] = fr.coefficient;
+              faceOk[static_cast<std::size_t>(i)] = fr.ok;
+            }
           }
         });
     for (std::size_t i = 0; i < faces.size(); ++i)
@@ -721,7 +718,6 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
       if (faceDirty[i])
         for (int s = 0; s < faces[i].count; ++s) cellDirty[faces[i].cell[s]] = 1;
   }
-  lap("last round");
   for (std::size_t v = 0; v < numVertices; ++v) {
     stats.blendedVertices += level[v] > 0;
     ++stats.levelCount[level[v]];
