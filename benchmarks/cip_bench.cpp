@@ -1,10 +1,11 @@
-// cip_bench: the measurements behind benchmarks/results/report.md, printed as CSV rows. Every figure of a row comes
-// from runs made side by side in the same invocation. Driven by benchmarks/run.py; usable alone:
+// cip_bench: the measurements behind benchmarks/results/report.md, printed as CSV rows. Every figure of a row
+// comes from runs made side by side in the same invocation. Driven by benchmarks/run.py; usable alone:
 //   cip_bench extraction --csv extraction.csv [--quick] [--shared-data ../shared/data]
 //   cip_bench fidelity   --csv fidelity.csv   [--quick]
-#include <CLI/CLI.hpp>
+//   cip_bench method     [--quick] [--shared-data ../shared/data]   (the tables of docs/method.md)
 #include <tbb/info.h>
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -20,6 +21,7 @@
 #include "cip/ply.h"
 #include "cip/surface_fidelity.h"
 #include "cip/volume_reader.h"
+#include "method_tables.h"
 #include "openvdb_peer.h"
 
 namespace {
@@ -83,9 +85,9 @@ std::size_t inputFileBytes(const std::string& path) {
 }
 
 struct Case {
-  std::string name;     // e.g. sphere-128, tooth
-  std::string source;   // analytic | file path
-  int resolution = 0;   // analytic only
+  std::string name;    // e.g. sphere-128, tooth
+  std::string source;  // analytic | file path
+  int resolution = 0;  // analytic only
   double iso = 0;
   std::size_t inputBytes = 0;
 };
@@ -98,8 +100,8 @@ void extraction(const std::string& csvPath, bool quick, const std::string& share
     for (int n : quick ? std::vector<int>{32} : std::vector<int>{64, 128, 256})
       cases.push_back({std::string(f) + "-" + std::to_string(n), f, n, 0.0, 0});
   if (std::filesystem::exists(shared)) {
-    std::vector<std::pair<std::string, double>> files = {{"nucleon.nhdr", 128}, {"tooth.nhdr", 120},
-                                                         {"headsq.nhdr", 500}};
+    std::vector<std::pair<std::string, double>> files = {
+        {"nucleon.nhdr", 128}, {"tooth.nhdr", 120}, {"headsq.nhdr", 500}};
     if (quick) files.resize(1);
     for (auto& [file, iso] : files) cases.push_back({file, shared + "/" + file, 0, iso, 0});
   }
@@ -128,8 +130,8 @@ void extraction(const std::string& csvPath, bool quick, const std::string& share
         cip::Model model;
         double tModel = timeIt([&] { model = cip::buildModel(grid, o); });
         std::size_t modelBytes = cip::serializeModel(model).size();
-        csv.row(c.name, grid.values.size(), cells, std::string("cip-patches-") + cip::toString(method), threads, tModel,
-                cells / tModel * 1e-6, model.cells.size(), modelBytes, c.inputBytes);
+        csv.row(c.name, grid.values.size(), cells, std::string("cip-patches-") + cip::toString(method),
+                threads, tModel, cells / tModel * 1e-6, model.cells.size(), modelBytes, c.inputBytes);
       }
       o.method = cip::PatchMethod::Paper;
       cip::TriangleMesh mc;
@@ -145,8 +147,8 @@ void extraction(const std::string& csvPath, bool quick, const std::string& share
               mc.triangleCount(), plyBytes(mc), c.inputBytes);
       std::size_t polys = 0;
       double tVdb = timeIt([&] { polys = peer.mesh(c.iso, threads); });
-      csv.row(c.name, grid.values.size(), cells, "openvdb-volumeToMesh", threads, tVdb, cells / tVdb * 1e-6, polys,
-              0, c.inputBytes);
+      csv.row(c.name, grid.values.size(), cells, "openvdb-volumeToMesh", threads, tVdb, cells / tVdb * 1e-6,
+              polys, 0, c.inputBytes);
     }
   }
 }
@@ -157,9 +159,10 @@ struct Variant {
 };
 
 void fidelity(const std::string& csvPath, bool quick) {
-  Csv csv(csvPath,
-          "field,N,method,cells,samples,dist_mean,dist_p99,dist_max,normal_mean,normal_p99,curv_mean,curv_p99,"
-          "spurious_cells,continuity_max_gap,continuity_max_angle_deg");
+  Csv csv(
+      csvPath,
+      "field,N,method,cells,samples,dist_mean,dist_p99,dist_max,normal_mean,normal_p99,curv_mean,curv_p99,"
+      "spurious_cells,continuity_max_gap,continuity_max_angle_deg");
   const std::vector<int> sizes = quick ? std::vector<int>{16} : std::vector<int>{16, 32, 64, 128};
   for (const char* name : {"sphere", "torus", "gyroid", "marschner-lobb"}) {
     auto field = cip::makeAnalyticField(name);
@@ -169,19 +172,21 @@ void fidelity(const std::string& csvPath, bool quick) {
       const double voxel = grid.geometry.spacing.minCoeff();
       const int lines = n >= 128 ? 2 : n >= 64 ? 3 : 4;
       const double iso = field->defaultIsovalue();
-      auto report = [&](const std::string& method, const cip::Model& m, const std::vector<cip::SurfaceSample>& s,
-                        bool patches) {
+      auto report = [&](const std::string& method, const cip::Model& m,
+                        const std::vector<cip::SurfaceSample>& s, bool patches) {
         cip::FidelityMeasures f = cip::measureFidelity(s, *field, iso, voxel, patches);
         std::int64_t spurious = patches ? cip::countSpuriousCells(m, *field, n >= 128 ? 4 : 8, 0.5) : 0;
         cip::ContinuityStats cont;
         if (patches) cont = cip::measureContinuity(m, n >= 64 ? 6 : 12);
-        csv.row(name, n, method, m.cells.size(), f.distanceVoxels.count, f.distanceVoxels.mean, f.distanceVoxels.p99,
-                f.distanceVoxels.max, f.normalDegrees.mean, f.normalDegrees.p99,
-                patches ? f.curvatureError.mean : 0.0, patches ? f.curvatureError.p99 : 0.0, patches ? spurious : -1,
-                patches ? cont.maxGap : -1.0, patches ? cont.maxAngle * 57.29577951308232 : -1.0);
+        csv.row(name, n, method, m.cells.size(), f.distanceVoxels.count, f.distanceVoxels.mean,
+                f.distanceVoxels.p99, f.distanceVoxels.max, f.normalDegrees.mean, f.normalDegrees.p99,
+                patches ? f.curvatureError.mean : 0.0, patches ? f.curvatureError.p99 : 0.0,
+                patches ? spurious : -1, patches ? cont.maxGap : -1.0,
+                patches ? cont.maxAngle * 57.29577951308232 : -1.0);
       };
       for (cip::PatchMethod method : {cip::PatchMethod::Fitted, cip::PatchMethod::Paper})
-        for (cip::NormalMode mode : {cip::NormalMode::Edge, cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
+        for (cip::NormalMode mode :
+             {cip::NormalMode::Edge, cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
           cip::BuildOptions o;
           o.isovalue = iso;
           o.normals = mode;
@@ -202,7 +207,8 @@ void fidelity(const std::string& csvPath, bool quick) {
         cip::TriangleMesh mesh = cip::marchingCubes(m);
         std::string base = mode == cip::NormalMode::Exact ? "mc-exactvertices" : "mc";
         report(base + "-facet", m, cip::sampleMeshSurface(mesh, m, lines, false), false);
-        report(base + "-vertexnormals-" + cip::toString(mode), m, cip::sampleMeshSurface(mesh, m, lines, true), false);
+        report(base + "-vertexnormals-" + cip::toString(mode), m,
+               cip::sampleMeshSurface(mesh, m, lines, true), false);
       }
     }
   }
@@ -215,17 +221,22 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   std::string csv, shared = "../shared/data";
   bool quick = false;
-  auto* ex = app.add_subcommand("extraction", "extraction time and output size: cip patches vs marching cubes vs OpenVDB");
+  auto* ex = app.add_subcommand("extraction",
+                                "extraction time and output size: cip patches vs marching cubes vs OpenVDB");
   ex->add_option("--csv", csv, "output CSV")->required();
   ex->add_option("--shared-data", shared, "folder with the real volumes");
   ex->add_flag("--quick", quick, "small sizes only");
   auto* fi = app.add_subcommand("fidelity", "distance, normal and curvature errors against analytic fields");
   fi->add_option("--csv", csv, "output CSV")->required();
   fi->add_flag("--quick", quick, "small sizes only");
+  auto* me = app.add_subcommand("method", "the measured tables of docs/method.md (Markdown on stdout)");
+  me->add_option("--shared-data", shared, "folder with the real volumes");
+  me->add_flag("--quick", quick, "N = 16 and the nucleon only");
   CLI11_PARSE(app, argc, argv);
   try {
     if (*ex) extraction(csv, quick, shared);
     if (*fi) fidelity(csv, quick);
+    if (*me) cipbench::methodTables(shared, quick);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "cip_bench: error: %s\n", e.what());
     return 1;

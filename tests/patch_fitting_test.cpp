@@ -15,6 +15,8 @@
 #include "cip/model_builder.h"
 #include "cip/model_file.h"
 #include "cip/surface_fidelity.h"
+#include "cip/volume_reader.h"
+#include "support/volume_files.h"
 
 using namespace cip;
 
@@ -111,7 +113,7 @@ TEST(CubicEdgeVertex, ExactRootAndGradientOfAQuadraticField) {
 }
 
 // Bricks sharing a plane of points: isovertices, faces and cells at the brick border are decided once, so the
-// joins stay continuous. The tricubic reference is extended linearly at brick borders (no stencil across
+// joins stay continuous. The reference's stencil is extended linearly at brick borders (no stencil across
 // bricks); the sign checks still hold there (docs/method.md).
 TEST(FittedPatches, BricksJoinContinuously) {
   auto field = makeAnalyticField("gyroid");
@@ -144,4 +146,47 @@ TEST(FittedPatches, BricksJoinContinuously) {
   EXPECT_LT(s.maxAngle, 1e-6);
   EXPECT_EQ(s.signDisagreements, 0);
   EXPECT_EQ(countSpuriousCells(m, *field, 8, 0.5), 0);
+}
+
+// Real CT data against its reference (the monotone tricubic interpolant): no cell with a wrong sign more than
+// half a voxel from the reference surface. Blocks of the tooth and of headsq (anisotropic spacing) keep the
+// test short; docs/method.md has the whole volumes.
+namespace {
+
+DenseGrid readVolumeDense(const std::string& path) {
+  SparseVolume v = readVolume(path);
+  return *v.dense();
+}
+
+DenseGrid crop(const DenseGrid& g, std::array<std::int64_t, 3> begin, std::array<std::int64_t, 3> size) {
+  DenseGrid out;
+  out.geometry = g.geometry;
+  out.allocate(size);
+  for (int a = 0; a < 3; ++a)
+    out.geometry.origin[a] = g.geometry.origin[a] +
+                             static_cast<double>(begin[static_cast<std::size_t>(a)]) * g.geometry.spacing[a];
+  for (std::int64_t k = 0; k < size[2]; ++k)
+    for (std::int64_t j = 0; j < size[1]; ++j)
+      for (std::int64_t i = 0; i < size[0]; ++i)
+        out.at(i, j, k) = g.at(begin[0] + i, begin[1] + j, begin[2] + k);
+  return out;
+}
+
+std::int64_t wrongSignCells(const DenseGrid& grid, double isovalue) {
+  BuildOptions o;
+  o.isovalue = isovalue;
+  Model m = buildModel(grid, o);
+  EXPECT_EQ(m.method, PatchMethod::Fitted);
+  EXPECT_GT(m.cells.size(), 500u);
+  return countSpuriousCells(m, TricubicInterpolant(grid), 8, 0.5);
+}
+
+}  // namespace
+
+TEST(FittedPatches, NoWrongSignCellsOnCtData) {
+  EXPECT_EQ(wrongSignCells(readVolumeDense(test::sharedData("nucleon.nhdr")), 128), 0);
+  DenseGrid tooth = readVolumeDense(test::sharedData("tooth.nhdr"));
+  EXPECT_EQ(wrongSignCells(crop(tooth, {30, 30, 60}, {40, 40, 40}), 120), 0);
+  DenseGrid headsq = readVolumeDense(test::sharedData("headsq.nhdr"));
+  EXPECT_EQ(wrongSignCells(crop(headsq, {10, 10, 30}, {40, 40, 30}), 500), 0);
 }

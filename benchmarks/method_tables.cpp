@@ -1,0 +1,177 @@
+#include "method_tables.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <functional>
+#include <vector>
+
+#include "cip/analytic_field.h"
+#include "cip/marching_cubes.h"
+#include "cip/model_builder.h"
+#include "cip/patch_fitting.h"
+#include "cip/surface_fidelity.h"
+#include "cip/volume_reader.h"
+
+namespace cipbench {
+
+namespace {
+
+/// Best of three single-thread runs, in milliseconds.
+double bestMs(const std::function<void()>& fn) {
+  double best = 1e300;
+  for (int r = 0; r < 3; ++r) {
+    const auto t0 = std::chrono::steady_clock::now();
+    fn();
+    best = std::min(best,
+                    std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  }
+  return best;
+}
+
+cip::Vec3 project(const cip::ScalarField& f, double iso, cip::Vec3 p) {
+  for (int it = 0; it < 30; ++it) {
+    const double v = f.value(p) - iso;
+    const cip::Vec3 g = f.gradient(p);
+    if (!(g.squaredNorm() > 0)) break;
+    const cip::Vec3 step = v / g.squaredNorm() * g;
+    p -= step;
+    if (step.norm() < 1e-13) break;
+  }
+  return p;
+}
+
+/// Mean angle (degrees) between the reference's gradient and the true gradient at the true surface points
+/// nearest the samples: how well the samples alone can know the normal.
+double referenceNormalError(const std::vector<cip::SurfaceSample>& samples, const cip::ScalarField& truth,
+                            const cip::ScalarField& reference, double iso) {
+  double sum = 0;
+  std::size_t n = 0;
+  for (const auto& s : samples) {
+    const cip::Vec3 p = project(truth, iso, s.world);
+    const cip::Vec3 a = truth.gradient(p), b = reference.gradient(p);
+    if (!(a.norm() > 0 && b.norm() > 0)) continue;
+    sum += std::acos(std::clamp(a.normalized().dot(b.normalized()), -1.0, 1.0)) * 57.29577951308232;
+    ++n;
+  }
+  return n ? sum / static_cast<double>(n) : 0.0;
+}
+
+double percent(std::int64_t count, std::size_t cells) {
+  return cells ? 100.0 * static_cast<double>(count) / static_cast<double>(cells) : 0.0;
+}
+
+void analyticTable(bool quick) {
+  std::printf(
+      "| field, N, mode | MC dist | MC facet normal | MC vertex normal | paper spurious | paper dist | paper "
+      "normal | "
+      "**fitted spurious** (8³/16³) | **fitted dist** | **fitted normal** (p99) | reference normal | time "
+      "paper → "
+      "fitted |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::vector<std::string> names = cip::analyticFieldNames();
+  names.erase(std::remove(names.begin(), names.end(), "plane"), names.end());
+  for (const std::string& name : names)
+    for (int n : quick ? std::vector<int>{16} : std::vector<int>{32, 64})
+      for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
+        auto field = cip::makeAnalyticField(name);
+        const cip::DenseGrid grid = cip::sampleField(*field, n, name);
+        cip::BuildOptions o;
+        o.isovalue = field->defaultIsovalue();
+        o.normals = mode;
+        o.exactField = field.get();
+        o.threads = 1;
+        o.method = cip::PatchMethod::Paper;
+        cip::Model paper;
+        const double tPaper = bestMs([&] { paper = cip::buildModel(grid, o); });
+        o.method = cip::PatchMethod::Fitted;
+        cip::Model fitted;
+        const double tFitted = bestMs([&] { fitted = cip::buildModel(grid, o); });
+        const double voxel = grid.geometry.spacing.minCoeff(), iso = o.isovalue;
+        const cip::TriangleMesh mesh = cip::marchingCubes(paper);
+        auto mcFacet =
+            cip::measureFidelity(cip::sampleMeshSurface(mesh, paper, 4, false), *field, iso, voxel, false);
+        auto mcVertex =
+            cip::measureFidelity(cip::sampleMeshSurface(mesh, paper, 4, true), *field, iso, voxel, false);
+        auto paperF = cip::measureFidelity(cip::samplePatchSurface(paper, 4), *field, iso, voxel, false);
+        const auto fittedSamples = cip::samplePatchSurface(fitted, 4);
+        auto fittedF = cip::measureFidelity(fittedSamples, *field, iso, voxel, false);
+        const cip::TricubicInterpolant interpolant(grid);
+        const std::string reference =
+            mode == cip::NormalMode::Gradient
+                ? std::to_string(referenceNormalError(fittedSamples, *field, interpolant, iso)).substr(0, 5)
+                : "0 (exact)";
+        std::printf(
+            "| %s %d %s | %.4f | %.2f | %.2f | %.1f %% | %.4f | %.2f | **%.2f / %.2f %%** | **%.4f** | "
+            "**%.2f** (%.1f) "
+            "| %s | %.1f → %.1f ms (%.1f×) |\n",
+            name.c_str(), n, cip::toString(mode), mcFacet.distanceVoxels.mean, mcFacet.normalDegrees.mean,
+            mcVertex.normalDegrees.mean,
+            percent(cip::countSpuriousCells(paper, *field, 8, 0.5), paper.cells.size()),
+            paperF.distanceVoxels.mean, paperF.normalDegrees.mean,
+            percent(cip::countSpuriousCells(fitted, *field, 8, 0.5), fitted.cells.size()),
+            percent(cip::countSpuriousCells(fitted, *field, 16, 0.5), fitted.cells.size()),
+            fittedF.distanceVoxels.mean, fittedF.normalDegrees.mean, fittedF.normalDegrees.p99,
+            reference.c_str(), tPaper, tFitted, tFitted / tPaper);
+        std::fflush(stdout);
+      }
+}
+
+void realTable(const std::string& shared, bool quick) {
+  std::printf(
+      "\n| volume, isovalue | cells | paper wrong-sign cells | **fitted wrong-sign cells** (8³ / 16³) | "
+      "fitted dist / "
+      "normal vs the interpolant | blended isovertices, unresolved cells | time paper → fitted |\n"
+      "|---|---|---|---|---|---|---|\n");
+  struct Case {
+    const char* file;
+    double iso;
+  };
+  std::vector<Case> cases = {{"nucleon.nhdr", 128},
+                             {"tooth.nhdr", 120},
+                             {"tooth.nhdr", 200},
+                             {"headsq.nhdr", 500},
+                             {"headsq.nhdr", 1150}};
+  if (quick) cases.resize(1);
+  for (const Case& c : cases) {
+    const std::string path = shared + "/" + c.file;
+    if (!std::filesystem::exists(path)) continue;
+    const cip::SparseVolume volume = cip::readVolume(path);
+    const cip::DenseGrid& grid = *volume.dense();
+    const cip::TricubicInterpolant reference(grid);
+    cip::BuildOptions o;
+    o.isovalue = c.iso;
+    o.threads = 1;
+    o.method = cip::PatchMethod::Paper;
+    cip::Model paper;
+    const double tPaper = bestMs([&] { paper = cip::buildModel(grid, o); });
+    o.method = cip::PatchMethod::Fitted;
+    cip::FittingStats stats;
+    o.fittingStats = &stats;
+    cip::Model fitted;
+    const double tFitted = bestMs([&] { fitted = cip::buildModel(grid, o); });
+    const double voxel = grid.geometry.spacing.minCoeff();
+    auto f = cip::measureFidelity(cip::samplePatchSurface(fitted, 4), reference, c.iso, voxel, false);
+    const std::int64_t paperBad = cip::countSpuriousCells(paper, reference, 8, 0.5);
+    std::printf(
+        "| %s %g | %zu | %lld (%.1f %%) | **%lld / %lld** | %.4f / %.2f° | %zu, %zu | %.0f → %.0f ms (%.1f×) "
+        "|\n",
+        c.file, c.iso, fitted.cells.size(), static_cast<long long>(paperBad),
+        percent(paperBad, paper.cells.size()),
+        static_cast<long long>(cip::countSpuriousCells(fitted, reference, 8, 0.5)),
+        static_cast<long long>(cip::countSpuriousCells(fitted, reference, 16, 0.5)), f.distanceVoxels.mean,
+        f.normalDegrees.mean, stats.blendedVertices, stats.unresolvedCells.size(), tPaper, tFitted,
+        tFitted / tPaper);
+    std::fflush(stdout);
+  }
+}
+
+}  // namespace
+
+void methodTables(const std::string& sharedData, bool quick) {
+  analyticTable(quick);
+  realTable(sharedData, quick);
+}
+
+}  // namespace cipbench
