@@ -454,6 +454,66 @@ struct CellResult {
   bool ok = true;
 };
 
+/// The reference and the patch on a cell's n^3 lattice, with the reference's squared gradient (central
+/// differences, one-sided at the lattice border, in smallest-voxel units) for the first-order distance.
+template <int n>
+struct CellLattice {
+  std::array<double, n * n * n> r, g2, value, basis;
+
+  CellLattice(const PatchLines<n>& lines, const CellReference& ref) {
+    referenceCellLattice<n>(ref, r);
+    lines.lattice(value, basis);
+    int up[n], down[n];
+    double inverseSpan[n];
+    for (int i = 0; i < n; ++i) {
+      up[i] = i + 1 < n ? 1 : 0;
+      down[i] = i > 0 ? 1 : 0;
+      inverseSpan[i] = 1.0 / (latticeStep(n) * (up[i] + down[i]));
+    }
+    for (int d = 0; d < n; ++d)
+      for (int b = 0; b < n; ++b) {
+        const double* row = &r[static_cast<std::size_t>(n * (b + n * d))];
+        const double sy = inverseSpan[b] * ref.metric.y(), sz = inverseSpan[d] * ref.metric.z();
+        const int yUp = up[b] * n, yDown = down[b] * n, zUp = up[d] * n * n, zDown = down[d] * n * n;
+        for (int a = 0; a < n; ++a) {
+          const double gx = (row[a + up[a]] - row[a - down[a]]) * inverseSpan[a] * ref.metric.x();
+          const double gy = (row[a + yUp] - row[a - yDown]) * sy;
+          const double gz = (row[a + zUp] - row[a - zDown]) * sz;
+          g2[static_cast<std::size_t>(a + n * (b + n * d))] = gx * gx + gy * gy + gz * gz;
+        }
+      }
+  }
+
+  bool far(std::size_t i) const { return r[i] * r[i] > kMarginVoxels * kMarginVoxels * g2[i]; }
+
+  /// The sign constraints of the samples farther than the margin from the reference surface.
+  void addFar(Interval& interval) const {
+    for (std::size_t i = 0; i < r.size(); ++i)
+      if (far(i)) interval.add(r[i] > 0, value[i], basis[i]);
+  }
+
+  /// Samples within the margin by the first-order estimate to which `central` gives the wrong sign: checked
+  /// by Newton steps on the reference, and added as constraints unless those reach the surface within
+  /// kVerifiedVoxels. Returns whether any was added.
+  bool addVerified(Interval& interval, double central, const CellReference& ref) const {
+    bool added = false;
+    for (int d = 0; d < n; ++d)
+      for (int b = 0; b < n; ++b)
+        for (int a = 0; a < n; ++a) {
+          const std::size_t i = static_cast<std::size_t>(a + n * (b + n * d));
+          if (far(i)) continue;
+          const double v = value[i] + central * basis[i];
+          if ((v > 0) == (r[i] > 0) || v == 0) continue;
+          if (referenceSurfaceWithin(ref, Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)),
+                                     r[i], kVerifiedVoxels))
+            continue;
+          interval.add(r[i] > 0, value[i], basis[i]);
+          added = true;
+        }
+    return added;
+  }
+};
+
 CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   constexpr int n = kCellLattice;
   // Fit points lie on the lattice lines along the axis closest to the mean corner normal.
@@ -462,40 +522,14 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   int fitAxis = 0;
   meanNormal.cwiseAbs().maxCoeff(&fitAxis);
   const PatchLines<n> lines(patch, fitAxis);
-  std::array<double, n * n * n> r, patchValue, patchBasis;
-  referenceCellLattice<n>(ref, r);
-  lines.lattice(patchValue, patchBasis);
-  // Squared reference gradient per lattice point (central differences, one-sided at the lattice border, in
-  // smallest-voxel units), then the sign constraint of every point farther than the margin from the surface.
-  // Neighbour offsets along one axis (in units of that axis' stride) and 1 / (their distance).
-  int up[n], down[n];
-  double inverseSpan[n];
-  for (int i = 0; i < n; ++i) {
-    up[i] = i + 1 < n ? 1 : 0;
-    down[i] = i > 0 ? 1 : 0;
-    inverseSpan[i] = 1.0 / (latticeStep(n) * (up[i] + down[i]));
-  }
-  std::array<double, n * n * n> g2;
-  for (int d = 0; d < n; ++d)
-    for (int b = 0; b < n; ++b) {
-      const double* row = &r[static_cast<std::size_t>(n * (b + n * d))];
-      const double sy = inverseSpan[b] * ref.metric.y(), sz = inverseSpan[d] * ref.metric.z();
-      const int yUp = up[b] * n, yDown = down[b] * n, zUp = up[d] * n * n, zDown = down[d] * n * n;
-      for (int a = 0; a < n; ++a) {
-        const double gx = (row[a + up[a]] - row[a - down[a]]) * inverseSpan[a] * ref.metric.x();
-        const double gy = (row[a + yUp] - row[a - yDown]) * sy;
-        const double gz = (row[a + zUp] - row[a - zDown]) * sz;
-        g2[static_cast<std::size_t>(a + n * (b + n * d))] = gx * gx + gy * gy + gz * gz;
-      }
-    }
-  constexpr double margin2 = kMarginVoxels * kMarginVoxels;
+  const CellLattice<n> lattice(lines, ref);
   Interval interval;
-  for (std::size_t i = 0; i < r.size(); ++i)
-    if (r[i] * r[i] > margin2 * g2[i]) interval.add(r[i] > 0, patchValue[i], patchBasis[i]);
+  lattice.addFar(interval);
   // Faces of the cell that are not bounding planes (no crossing on their edges): the cell across has no patch
   // there or none that joins this one, so a wrong sign on the face itself would show as a sheet, and the
   // lattice above stays inset from the faces. Their face lattices are checked too.
   constexpr int nf = kOpenFaceLattice;
+  constexpr double margin2 = kMarginVoxels * kMarginVoxels;
   struct OpenFace {
     int face;
     std::array<double, nf * nf> r, g2, value, basis;
@@ -518,8 +552,8 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   for (int q = 0; q < n; ++q)
     for (int p = 0; p < n; ++p)
       for (int i = 0; i + 1 < n; ++i) {
-        const double r0 = r[static_cast<std::size_t>(lines.index(i, p, q))];
-        const double r1 = r[static_cast<std::size_t>(lines.index(i + 1, p, q))];
+        const double r0 = lattice.r[static_cast<std::size_t>(lines.index(i, p, q))];
+        const double r1 = lattice.r[static_cast<std::size_t>(lines.index(i + 1, p, q))];
         if ((r0 > 0) == (r1 > 0)) continue;
         double basis;
         const double v = lines.at(latticeCoord(i, n) + r0 / (r0 - r1) * latticeStep(n), p, q, basis);
@@ -534,25 +568,8 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   // Samples within the margin by the first-order estimate are left free, but where the clamped coefficient
   // gives one of them the wrong sign, the estimate is checked by Newton steps on the reference; a sample that
   // turns out farther from the surface joins the constraints. Wrong signs are rare, so this costs little.
-  for (int pass = 0; pass < 4; ++pass) {
-    if (!interval.feasible()) break;
-    const double central = interval.clamp(w);
+  auto verifyOpenFaces = [&](double central) {
     bool added = false;
-    auto verify = [&](const Vec3& x, double rv, double a, double b) {
-      const double v = a + central * b;
-      if ((v > 0) == (rv > 0) || v == 0) return;
-      if (referenceSurfaceWithin(ref, x, rv, kVerifiedVoxels)) return;
-      interval.add(rv > 0, a, b);
-      added = true;
-    };
-    for (int d = 0; d < n; ++d)
-      for (int b = 0; b < n; ++b)
-        for (int a = 0; a < n; ++a) {
-          const std::size_t i = static_cast<std::size_t>(a + n * (b + n * d));
-          if (r[i] * r[i] > margin2 * g2[i]) continue;
-          verify(Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)), r[i], patchValue[i],
-                 patchBasis[i]);
-        }
     for (int k = 0; k < numOpen; ++k) {
       const OpenFace& o = open[static_cast<std::size_t>(k)];
       const auto uv = cube::otherAxes(cube::faceAxis(o.face));
@@ -560,14 +577,24 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
         for (int a = 0; a < nf; ++a) {
           const std::size_t i = static_cast<std::size_t>(a + nf * b);
           if (o.r[i] * o.r[i] > margin2 * o.g2[i]) continue;
+          const double v = o.value[i] + central * o.basis[i];
+          if ((v > 0) == (o.r[i] > 0) || v == 0) continue;
           Vec3 x;
           x[cube::faceAxis(o.face)] = cube::faceSide(o.face);
           x[uv[0]] = latticeCoord(a, nf);
           x[uv[1]] = latticeCoord(b, nf);
-          verify(x, o.r[i], o.value[i], o.basis[i]);
+          if (referenceSurfaceWithin(ref, x, o.r[i], kVerifiedVoxels)) continue;
+          interval.add(o.r[i] > 0, o.value[i], o.basis[i]);
+          added = true;
         }
     }
-    if (!added) break;
+    return added;
+  };
+  for (int pass = 0; pass < 4 && interval.feasible(); ++pass) {
+    const double central = interval.clamp(w);
+    const bool lattice6 = lattice.addVerified(interval, central, ref);
+    const bool faces = verifyOpenFaces(central);
+    if (!lattice6 && !faces) break;
   }
   out.ok = interval.feasible();
   out.central = out.ok ? interval.clamp(w) : 0.0;
