@@ -172,6 +172,23 @@ void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n 
     }
 }
 
+/// Calls fn(coefficient, plane normal, plane offset, squared-face mask) for every term of
+/// valueWithoutCentral: a corner term's plane is its corner plane, a side term's plane the constant 1 (normal
+/// 0, offset 1).
+template <class F>
+void forEachTermWithoutCentral(const CornerPatch& patch, F&& fn) {
+  std::array<PatchTerm, CornerPatch::kMaxTerms> terms;
+  const int count = patch.terms(terms);
+  for (int k = 0; k < count; ++k) {
+    const PatchTerm& t = terms[static_cast<std::size_t>(k)];
+    if (t.corner >= 0)
+      fn(t.coefficient, patch.normal[t.corner], -patch.normal[t.corner].dot(patch.point[t.corner]),
+         t.faceSquares);
+    else if (t.faceSquares != patch.faceMask)
+      fn(t.coefficient, Vec3::Zero(), 1.0, t.faceSquares);
+  }
+}
+
 /// The patch on the lattice lines of a cell along one axis L (the other two axes at lattice coordinates):
 /// every term is a corner plane (linear) times squared face planes, each depending on one coordinate, so on
 /// the line through lattice point (p, q) of the other axes
@@ -200,15 +217,7 @@ class PatchLines {
           a_[mL][pq] += across * (normal[other_[0]] * t_[p] + normal[other_[1]] * t_[q] + offset);
         }
     };
-    for (int c = 0; c < patch.numCorners; ++c) {
-      auto ef = cube::edgeFaces(patch.edge[c]);
-      add(patch.weight[c], patch.normal[c], -patch.normal[c].dot(patch.point[c]),
-          static_cast<std::uint8_t>(patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]))));
-    }
-    for (int f = 0; f < 6; ++f)
-      if (((patch.faceMask >> f) & 1) && patch.faceCoefficient[f] != 0)
-        add(patch.faceCoefficient[f], Vec3::Zero(), 1.0,
-            static_cast<std::uint8_t>(patch.faceMask & ~(1u << f)));
+    forEachTermWithoutCentral(patch, add);
     central_ = pattern(patch.faceMask, axis_);
     const int cP = pattern(patch.faceMask, other_[0]), cQ = pattern(patch.faceMask, other_[1]);
     for (int q = 0; q < n; ++q)
@@ -303,15 +312,7 @@ void patchFaceLattice(const CornerPatch& patch, int f, std::array<double, n * n>
         value[static_cast<std::size_t>(a + n * b)] += rowScale * su[a] * (rowConstant + normal[uv[0]] * t[a]);
     }
   };
-  for (int c = 0; c < patch.numCorners; ++c) {
-    auto ef = cube::edgeFaces(patch.edge[c]);
-    add(patch.weight[c], patch.normal[c], -patch.normal[c].dot(patch.point[c]),
-        static_cast<std::uint8_t>(patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]))));
-  }
-  for (int g = 0; g < 6; ++g)
-    if (((patch.faceMask >> g) & 1) && patch.faceCoefficient[g] != 0)
-      add(patch.faceCoefficient[g], Vec3::Zero(), 1.0,
-          static_cast<std::uint8_t>(patch.faceMask & ~(1u << g)));
+  forEachTermWithoutCentral(patch, add);
   const double across = squares(pattern(patch.faceMask, axis), side);
   const double* su = sq[pattern(patch.faceMask, uv[0])];
   const double* sv = sq[pattern(patch.faceMask, uv[1])];
