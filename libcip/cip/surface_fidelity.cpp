@@ -14,26 +14,13 @@ namespace {
 
 constexpr double kRadToDeg = 57.29577951308232;
 
-Vec3 project(const ScalarField& f, double iso, Vec3 p) {
-  for (int it = 0; it < 30; ++it) {
-    double v = f.value(p) - iso;
-    Vec3 g = f.gradient(p);
-    double g2 = g.squaredNorm();
-    if (!(g2 > 0)) break;
-    Vec3 step = v / g2 * g;
-    p -= step;
-    if (step.norm() < 1e-13) break;
-  }
-  return p;
-}
-
 /// Whether the true surface passes within `radius` (world) of w, where truth - iso = fw != 0. A Newton
 /// projection that lands on the surface within the radius proves it (the landing point is a surface point,
 /// so the distance is at most that far); otherwise a ball of points 1/8 of the radius apart is searched for
 /// the other sign. (Newton alone can land on a farther part of the surface than the nearest one, and then
 /// overstates the distance.)
 bool surfaceWithin(const ScalarField& truth, double iso, const Vec3& w, double fw, double radius) {
-  const Vec3 p = project(truth, iso, w);
+  const Vec3 p = projectToSurface(truth, iso, w);
   const double pv = truth.value(p) - iso;
   if ((p - w).norm() <= radius && std::abs(pv) <= 1e-9 * std::max(1.0, std::abs(fw))) return true;
   constexpr int k = 8;
@@ -71,6 +58,19 @@ std::vector<SurfaceSample> collect(std::size_t cells, PerCell&& perCell) {
 }
 
 }  // namespace
+
+Vec3 projectToSurface(const ScalarField& f, double iso, Vec3 p) {
+  for (int it = 0; it < 30; ++it) {
+    double v = f.value(p) - iso;
+    Vec3 g = f.gradient(p);
+    double g2 = g.squaredNorm();
+    if (!(g2 > 0)) break;
+    Vec3 step = v / g2 * g;
+    p -= step;
+    if (step.norm() < 1e-13) break;
+  }
+  return p;
+}
 
 double meanCurvature(const Vec3& g, const Mat3& h) {
   double n = g.norm();
@@ -200,7 +200,7 @@ FidelityMeasures measureFidelity(const std::vector<SurfaceSample>& samples, cons
   std::vector<double> dist(samples.size()), angle(samples.size()), curv(withCurvature ? samples.size() : 0);
   tbb::parallel_for(std::size_t(0), samples.size(), [&](std::size_t i) {
     const SurfaceSample& s = samples[i];
-    Vec3 p = project(truth, iso, s.world);
+    Vec3 p = projectToSurface(truth, iso, s.world);
     dist[i] = (p - s.world).norm() / voxelSize;
     Vec3 g = truth.gradient(p);
     double c = g.norm() > 0 ? std::abs(g.normalized().dot(s.normal)) : 1.0;

@@ -60,6 +60,11 @@ FidelityMeasures measureFidelity(const std::vector<SurfaceSample>& samples, cons
 std::int64_t countSpuriousCells(const Model& model, const ScalarField& truth, int lattice = 8,
                                 double marginVoxels = 0.5);
 
+/// Newton steps along the gradient from p (world) onto the surface truth = iso (at most 30; stops when a step
+/// is below 1e-13 or the gradient vanishes). The result is a surface point when it converges, not always the
+/// nearest one.
+Vec3 projectToSurface(const ScalarField& truth, double iso, Vec3 p);
+
 /// Mean curvature (div of the unit normal, halved) of an implicit function with gradient g and Hessian h at a
 /// point, in the units of the coordinates g and h are taken in. Positive for a sphere with outward gradient.
 double meanCurvature(const Vec3& g, const Mat3& h);
