@@ -19,6 +19,10 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
                 {"isovertices", m.vertices.size()},
                 {"corners", m.corners.size()},
                 {"loops_per_cell", {{"1", loops[1]}, {"2", loops[2]}, {"3", loops[3]}, {"4", loops[4]}}}};
+  if (s.fitting)
+    j["fitting"] = {{"rounds", s.fitting->rounds},
+                    {"blended_isovertices", s.fitting->blendedVertices},
+                    {"unresolved_cells", s.fitting->unresolvedCells.size()}};
   j["seconds"] = s.seconds;
   j["bytes_written"] = s.bytesWritten;
   std::string text = j.dump(2) + "\n";

@@ -1,9 +1,11 @@
 // Statistics of one extract run, written with --stats-json.
 #pragma once
 #include <map>
+#include <optional>
 #include <string>
 
 #include "cip/model.h"
+#include "cip/patch_fitting.h"
 
 namespace cip {
 
@@ -14,10 +16,12 @@ struct ExtractStats {
   std::string normals, central, method;
   std::map<std::string, double> seconds;            ///< per stage
   std::map<std::string, std::size_t> bytesWritten;  ///< per output file
+  std::optional<FittingStats> fitting;              ///< the fitted construction's fallback (method fitted)
 };
 
 /// Writes the stats and the model's counts (non-empty cells, isovertices, corners, loops-per-cell histogram)
-/// as JSON, atomically.
+/// as JSON, atomically; for the fitted method also "fitting": rounds, blended isovertices and the cells left
+/// without a sign-correct coefficient.
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

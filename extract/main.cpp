@@ -120,7 +120,10 @@ int run(const Options& opt) {
   {
     cip::ProgressBar bar("building", !opt.quiet);
     build.progress = [&](double f) { bar.update(f); };
+    cip::FittingStats fitting;
+    if (build.method == cip::PatchMethod::Fitted) build.fittingStats = &fitting;
     model = cip::buildModel(volume.geometry, volume.bricks, build, volume.description);
+    if (build.fittingStats) stats.fitting = fitting;
   }
   stats.seconds["build"] = secondsSince(t1);
 
@@ -148,6 +151,12 @@ int run(const Options& opt) {
   if (!opt.quiet) {
     std::fprintf(stderr, "%s: %zu non-empty cells, %zu isovertices, %zu bytes\n", opt.output.c_str(),
                  model.cells.size(), model.vertices.size(), stats.bytesWritten[opt.output]);
+    if (stats.fitting && !stats.fitting->unresolvedCells.empty())
+      std::fprintf(
+          stderr,
+          "%zu cells have no coefficient that keeps the reference's sign everywhere checked; they may "
+          "show small wrong-sign regions (docs/method.md)\n",
+          stats.fitting->unresolvedCells.size());
   }
   if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, model);
   return 0;
@@ -210,7 +219,9 @@ int main(int argc, char** argv) {
       "also write a crack-free mesh of the corner-patch surface (binary PLY), e.g. --patch-mesh p.ply");
   app.add_option("--subdiv", opt.subdiv, "patch mesh: samples per cell edge (default 4), e.g. --subdiv 8")
       ->check(CLI::Range(1, 64));
-  app.add_option("--stats-json", opt.statsJson, "write run statistics as JSON, e.g. --stats-json stats.json");
+  app.add_option("--stats-json", opt.statsJson,
+                 "write run statistics as JSON (counts, timings, and for --method fitted the "
+                 "cells its sign checks could not satisfy), e.g. --stats-json stats.json");
   app.add_option("--threads", opt.threads,
                  "worker threads, 0 = all (default); the model does not depend on it, e.g. --threads 1")
       ->check(CLI::Range(0, 1024));

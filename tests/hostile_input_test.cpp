@@ -14,34 +14,18 @@
 #include <vector>
 
 #include "cip/model_file.h"
+#include "support/command_line.h"
 
 namespace fs = std::filesystem;
+
+using cip::test::CommandResult;
+using cip::test::run;
+using cip::test::slurp;
 
 namespace {
 
 const std::string kExtract = std::string(CIP_BINARY_DIR) + "/extract/extract";
 const std::string kRaycast = std::string(CIP_BINARY_DIR) + "/raycast/raycast";
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-struct CommandResult {
-  int status;
-  std::string err;
-};
-
-CommandResult run(const std::string& args) {
-  fs::path errFile =
-      fs::temp_directory_path() / ("cip_hostile_stderr_" + std::to_string(::getpid()) + ".txt");
-  int rc = std::system((args + " 2> " + errFile.string() + " > /dev/null").c_str());
-  std::string err = slurp(errFile);
-  fs::remove(errFile);
-  return {WEXITSTATUS(rc), err};
-}
 
 class HostileInput : public ::testing::Test {
  protected:

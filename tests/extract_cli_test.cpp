@@ -1,0 +1,55 @@
+// The extract command's run statistics (--stats-json) and its report of the fitted construction's fallback.
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "cip/model_builder.h"
+#include "cip/patch_fitting.h"
+#include "cip/volume_reader.h"
+#include "support/command_line.h"
+#include "support/volume_files.h"
+
+using namespace cip;
+
+namespace {
+
+const std::string kExtract = std::string(CIP_BINARY_DIR) + "/extract/extract";
+
+}  // namespace
+
+// The fitted build's fallback counts reach the stats file and, when cells stay unresolved, standard error;
+// they are those of the library's own build of the same volume.
+TEST(ExtractCli, StatsReportTheFittedFallback) {
+  test::ScratchDir dir;
+  const std::string volume = test::sharedData("headsq.nhdr");
+  BuildOptions o;
+  o.isovalue = 1150;
+  FittingStats expected;
+  o.fittingStats = &expected;
+  SparseVolume v = readVolume(volume);
+  buildModel(*v.dense(), o);
+  ASSERT_GT(expected.unresolvedCells.size(), 0u);
+
+  const std::string json = dir.file("stats.json");
+  test::CommandResult r =
+      test::run(kExtract + " " + volume + " --iso 1150 -o " + dir.file("m.cip") + " --stats-json " + json);
+  ASSERT_EQ(r.status, 0) << r.err;
+  const std::string text = test::slurp(json);
+  EXPECT_NE(text.find("\"unresolved_cells\": " + std::to_string(expected.unresolvedCells.size())),
+            std::string::npos)
+      << text;
+  EXPECT_NE(text.find("\"blended_isovertices\": " + std::to_string(expected.blendedVertices)),
+            std::string::npos)
+      << text;
+  EXPECT_NE(text.find("\"rounds\": " + std::to_string(expected.rounds)), std::string::npos) << text;
+  EXPECT_NE(r.err.find(std::to_string(expected.unresolvedCells.size()) + " cells have no coefficient"),
+            std::string::npos)
+      << r.err;
+
+  // The paper construction has no fallback to report.
+  r = test::run(kExtract + " " + volume + " --iso 1150 --method paper -o " + dir.file("p.cip") +
+                " --stats-json " + json);
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(test::slurp(json).find("\"fitting\""), std::string::npos);
+  EXPECT_EQ(r.err.find("cells have no coefficient"), std::string::npos) << r.err;
+}
