@@ -172,6 +172,20 @@ void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n 
     }
 }
 
+/// The two bits of a squared-face mask (bit 2a: plane x_a = 0, bit 2a + 1: plane x_a = 1) that concern axis
+/// a.
+int pattern(std::uint8_t mask, int axis) {
+  return (mask >> (2 * axis)) & 3;
+}
+
+/// Product of the squared face planes along one axis selected by pattern m, at coordinate t.
+double squares(int m, double t) {
+  double s = 1;
+  if (m & 1) s *= t * t;
+  if (m & 2) s *= (1 - t) * (1 - t);
+  return s;
+}
+
 /// Calls fn(coefficient, plane normal, plane offset, squared-face mask) for every term of
 /// valueWithoutCentral: a corner term's plane is its corner plane, a side term's plane the constant 1 (normal
 /// 0, offset 1).
@@ -262,13 +276,6 @@ class PatchLines {
   }
 
  private:
-  static int pattern(std::uint8_t mask, int axis) { return (mask >> (2 * axis)) & 3; }
-  static double squares(int m, double t) {
-    double s = 1;
-    if (m & 1) s *= t * t;
-    if (m & 2) s *= (1 - t) * (1 - t);
-    return s;
-  }
   int axis_;
   std::array<int, 2> other_;
   std::array<int, 3> stride_;  ///< lattice index steps along the line axis and the two others
@@ -287,18 +294,11 @@ void patchFaceLattice(const CornerPatch& patch, int f, std::array<double, n * n>
   const int axis = cube::faceAxis(f);
   const double side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
-  auto squares = [](int m, double t) {
-    double s = 1;
-    if (m & 1) s *= t * t;
-    if (m & 2) s *= (1 - t) * (1 - t);
-    return s;
-  };
   double t[n], sq[4][n];
   for (int i = 0; i < n; ++i) {
     t[i] = latticeCoord(i, n);
     for (int m = 0; m < 4; ++m) sq[m][i] = squares(m, t[i]);
   }
-  auto pattern = [](std::uint8_t mask, int a) { return (mask >> (2 * a)) & 3; };
   value.fill(0);
   auto add = [&](double coefficient, const Vec3& normal, double offset, std::uint8_t mask) {
     const double across = coefficient * squares(pattern(mask, axis), side);
