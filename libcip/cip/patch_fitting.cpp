@@ -11,13 +11,12 @@
 
 #include "cip/cube_topology.h"
 #include "cip/patch_coefficients.h"
+#include "cip/sign_constraints.h"
 #include "cip/tricubic_reference.h"
 
 namespace cip {
 
 namespace {
-
-constexpr double kInf = std::numeric_limits<double>::infinity();
 
 /// Blend levels of a corner-plane normal: n = normalize((1 - beta) n_gradient + beta e_edge).
 constexpr std::array<double, 5> kBlend{0.0, 0.25, 0.5, 0.75, 1.0};
@@ -45,30 +44,6 @@ constexpr double kVerifiedVoxels = 0.3;
 /// Weight of the ridge term of the coefficient fits (relative to a fit point at the cell or face centre).
 constexpr double kRidge = 1e-3;
 
-/// Interval of a coefficient w with sign(s) * (a + w b) > 0 for all added constraints (b >= 0).
-struct Interval {
-  double lo = -kInf, hi = kInf;
-  bool empty = false;
-  /// One constraint; written without data-dependent branches (it runs for every lattice point).
-  void add(bool positive, double a, double b) {
-    const bool degenerate = !(b > 1e-300);
-    empty |= degenerate & ((a > 0) != positive);
-    const double bound = degenerate ? (positive ? -kInf : kInf) : -a / b;
-    lo = positive ? std::max(lo, bound) : lo;
-    hi = positive ? hi : std::min(hi, bound);
-  }
-  bool feasible() const { return !empty && lo < hi; }
-  /// `w` moved into the interval, kept a relative margin away from each end (an end puts the zero set through
-  /// the sample that defines it: at the end t = -a / b, a + w b >= kEps |a| needs w >= t + kEps |t|).
-  double clamp(double w) const {
-    constexpr double kEps = 0.05;
-    double a = std::isfinite(lo) ? lo + kEps * std::abs(lo) : lo;
-    double b = std::isfinite(hi) ? hi - kEps * std::abs(hi) : hi;
-    if (!(a <= b)) return 0.5 * (lo + hi);
-    return std::clamp(w, a, b);
-  }
-};
-
 /// Hermite weights and their derivatives at the n lattice coordinates (the same on every axis).
 template <int n>
 struct LatticeWeights {
@@ -85,12 +60,12 @@ struct LatticeWeights {
 /// Reference values at the cell lattice (latticeCoord per axis, index a + n (b + n d)). The tricubic
 /// interpolant is contracted one axis at a time (the weights are the same on every axis).
 template <int n>
-void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n>& out) {
+void referenceCellLattice(const CellReference& ref, double* out) {
   if (ref.field) {
     for (int d = 0; d < n; ++d)
       for (int b = 0; b < n; ++b)
         for (int a = 0; a < n; ++a)
-          out[static_cast<std::size_t>(a + n * (b + n * d))] =
+          out[a + n * (b + n * d)] =
               ref.value(Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)));
     return;
   }
@@ -108,68 +83,54 @@ void referenceCellLattice(const CellReference& ref, std::array<double, n * n * n
                             w[b][3] * ax[a][3 + 4 * k];
   for (int d = 0; d < n; ++d)
     for (int ab = 0; ab < n * n; ++ab)
-      out[static_cast<std::size_t>(ab + n * n * d)] = w[d][0] * bxy[ab][0] + w[d][1] * bxy[ab][1] +
-                                                      w[d][2] * bxy[ab][2] + w[d][3] * bxy[ab][3] -
-                                                      ref.isovalue;
+      out[ab + n * n * d] = w[d][0] * bxy[ab][0] + w[d][1] * bxy[ab][1] + w[d][2] * bxy[ab][2] +
+                            w[d][3] * bxy[ab][3] - ref.isovalue;
 }
 
-/// Reference values on face f at the lattice coordinates in the face frame (index a + n b), and the squared
-/// gradient there in smallest-voxel units (ref.metric), for the distance estimate of the sign checks.
+/// Cell-local position of lattice point (a, b) of face f (face frame: a along otherAxes[0], b along
+/// otherAxes[1]).
 template <int n>
-void referenceFaceLattice(const CellReference& ref, int f, std::array<double, n * n>& value,
-                          std::array<double, n * n>& gradient2) {
-  const int axis = cube::faceAxis(f), side = cube::faceSide(f);
+Vec3 faceLatticePoint(int f, int a, int b) {
+  const int axis = cube::faceAxis(f);
   const auto uv = cube::otherAxes(axis);
-  const Vec3& metric = ref.metric;
+  Vec3 x;
+  x[axis] = cube::faceSide(f);
+  x[uv[0]] = latticeCoord(a, n);
+  x[uv[1]] = latticeCoord(b, n);
+  return x;
+}
+
+/// Reference values minus the isovalue on face f at its lattice (index a + n b), from the in-plane Hermite
+/// data of the face.
+template <int n>
+void referenceFaceLattice(const CellReference& ref, int f, double* value) {
   if (ref.field) {
     for (int b = 0; b < n; ++b)
-      for (int a = 0; a < n; ++a) {
-        Vec3 x;
-        x[axis] = side;
-        x[uv[0]] = latticeCoord(a, n);
-        x[uv[1]] = latticeCoord(b, n);
-        value[static_cast<std::size_t>(a + n * b)] = ref.value(x);
-        gradient2[static_cast<std::size_t>(a + n * b)] = ref.gradient(x).cwiseProduct(metric).squaredNorm();
-      }
+      for (int a = 0; a < n; ++a) value[a + n * b] = ref.value(faceLatticePoint<n>(f, a, b));
     return;
   }
-  // In-plane Hermite data on the face and the across-face derivative there.
+  const int axis = cube::faceAxis(f), side = cube::faceSide(f);
+  const auto uv = cube::otherAxes(axis);
   constexpr int stride[3] = {1, 4, 16};
   const int su = stride[uv[0]], sv = stride[uv[1]], sn = stride[axis];
-  double p0[4][4], p1[4][4];
-  for (int jb = 0; jb < 4; ++jb)
-    for (int ia = 0; ia < 4; ++ia) {
-      const double* column = &ref.hermite[static_cast<std::size_t>(ia * su + jb * sv)];
-      p0[ia][jb] = column[2 * side * sn];
-      p1[ia][jb] = column[(2 * side + 1) * sn];
-    }
-  const LatticeWeights<n>& lw = LatticeWeights<n>::get();
-  double a0[n][4], ad[n][4], a1[n][4];
+  const auto& w = LatticeWeights<n>::get().w;
+  double along[n][4];  // contracted along u, per v-Hermite index
   for (int a = 0; a < n; ++a)
     for (int jb = 0; jb < 4; ++jb) {
-      a0[a][jb] = ad[a][jb] = a1[a][jb] = 0;
-      for (int ia = 0; ia < 4; ++ia) {
-        a0[a][jb] += lw.w[a][ia] * p0[ia][jb];
-        ad[a][jb] += lw.d[a][ia] * p0[ia][jb];
-        a1[a][jb] += lw.w[a][ia] * p1[ia][jb];
-      }
+      along[a][jb] = 0;
+      for (int ia = 0; ia < 4; ++ia)
+        along[a][jb] += w[a][ia] * ref.hermite[static_cast<std::size_t>(ia * su + jb * sv + 2 * side * sn)];
     }
-  const double mu = metric[uv[0]], mv = metric[uv[1]], mn = metric[axis];
   for (int b = 0; b < n; ++b)
-    for (int a = 0; a < n; ++a) {
-      double v = 0, gu = 0, gv = 0, gn = 0;
-      for (int jb = 0; jb < 4; ++jb) {
-        v += lw.w[b][jb] * a0[a][jb];
-        gu += lw.w[b][jb] * ad[a][jb];
-        gv += lw.d[b][jb] * a0[a][jb];
-        gn += lw.w[b][jb] * a1[a][jb];
-      }
-      gu *= mu;
-      gv *= mv;
-      gn *= mn;
-      value[static_cast<std::size_t>(a + n * b)] = v - ref.isovalue;
-      gradient2[static_cast<std::size_t>(a + n * b)] = gu * gu + gv * gv + gn * gn;
-    }
+    for (int a = 0; a < n; ++a)
+      value[a + n * b] = w[b][0] * along[a][0] + w[b][1] * along[a][1] + w[b][2] * along[a][2] +
+                         w[b][3] * along[a][3] - ref.isovalue;
+}
+
+/// Whether the first-order distance |r| / |grad r| (smallest voxels) of a point with reference value r and
+/// gradient g (per local unit) exceeds kMarginVoxels.
+bool farFromSurface(const CellReference& ref, double r, const Vec3& gradient) {
+  return r * r > kMarginVoxels * kMarginVoxels * gradient.cwiseProduct(ref.metric).squaredNorm();
 }
 
 /// The two bits of a squared-face mask (bit 2a: plane x_a = 0, bit 2a + 1: plane x_a = 1) that concern axis
@@ -242,7 +203,7 @@ class PatchLines {
   int index(int i, int p, int q) const { return i * stride_[0] + p * stride_[1] + q * stride_[2]; }
 
   /// valueWithoutCentral and centralBasis at every lattice point.
-  void lattice(std::array<double, n * n * n>& value, std::array<double, n * n * n>& basis) const {
+  void lattice(double* value, double* basis) const {
     int patterns[4], numPatterns = 0;
     for (int m = 0; m < 4; ++m)
       if ((used_ >> m) & 1) patterns[numPatterns++] = m;
@@ -289,8 +250,7 @@ class PatchLines {
 /// valueWithoutCentral and centralBasis of a patch on face f's lattice (face frame, index a + n b), by
 /// separable products as in PatchLines.
 template <int n>
-void patchFaceLattice(const CornerPatch& patch, int f, std::array<double, n * n>& value,
-                      std::array<double, n * n>& basis) {
+void patchFaceLattice(const CornerPatch& patch, int f, double* value, double* basis) {
   const int axis = cube::faceAxis(f);
   const double side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
@@ -299,7 +259,7 @@ void patchFaceLattice(const CornerPatch& patch, int f, std::array<double, n * n>
     t[i] = latticeCoord(i, n);
     for (int m = 0; m < 4; ++m) sq[m][i] = squares(m, t[i]);
   }
-  value.fill(0);
+  std::fill(value, value + n * n, 0.0);
   auto add = [&](double coefficient, const Vec3& normal, double offset, std::uint8_t mask) {
     const double across = coefficient * squares(pattern(mask, axis), side);
     if (across == 0) return;
@@ -308,8 +268,7 @@ void patchFaceLattice(const CornerPatch& patch, int f, std::array<double, n * n>
     const double constant = normal[axis] * side + offset;
     for (int b = 0; b < n; ++b) {
       const double rowScale = across * sv[b], rowConstant = constant + normal[uv[1]] * t[b];
-      for (int a = 0; a < n; ++a)
-        value[static_cast<std::size_t>(a + n * b)] += rowScale * su[a] * (rowConstant + normal[uv[0]] * t[a]);
+      for (int a = 0; a < n; ++a) value[a + n * b] += rowScale * su[a] * (rowConstant + normal[uv[0]] * t[a]);
     }
   };
   forEachTermWithoutCentral(patch, add);
@@ -317,7 +276,7 @@ void patchFaceLattice(const CornerPatch& patch, int f, std::array<double, n * n>
   const double* su = sq[pattern(patch.faceMask, uv[0])];
   const double* sv = sq[pattern(patch.faceMask, uv[1])];
   for (int b = 0; b < n; ++b)
-    for (int a = 0; a < n; ++a) basis[static_cast<std::size_t>(a + n * b)] = across * su[a] * sv[b];
+    for (int a = 0; a < n; ++a) basis[a + n * b] = across * su[a] * sv[b];
 }
 
 /// Whether Newton steps on the reference from cell-local point x0 (reference value r0 != 0) reach its zero
@@ -401,14 +360,9 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& 
   CornerPatch patch = model.patch(c, loops);
   FaceCrossings fc = faceCrossingsOf(patch, f, (model.cells[c].pairing03 >> f) & 1);
   constexpr int n = kFaceLattice;
-  std::array<double, n * n> r, rg2;
-  referenceFaceLattice<n>(ref, f, r, rg2);
-  std::array<double, n * n> cornerPart, sideBasis;
+  std::array<double, n * n> r, cornerPart, sideBasis;
+  referenceFaceLattice<n>(ref, f, r.data());
   faceRestrictionLattice<n>(fc, cornerPart, sideBasis);
-  Interval interval;
-  for (std::size_t i = 0; i < r.size(); ++i)
-    if (r[i] * r[i] > kMarginVoxels * kMarginVoxels * rg2[i])
-      interval.add(r[i] > 0, cornerPart[i], sideBasis[i]);
   // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
   double num = 0, den = 0;
   int fitCount = 0;
@@ -442,11 +396,14 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& 
   // the interior.
   const double dCentre = faceRestriction(fc, Vec2(0.5, 0.5)).sideBasis;
   den += kRidge * dCentre * dCentre * std::max(1, fitCount);
-  double w = -num / den;
+  const SignSamples samples{r.data(), cornerPart.data(), sideBasis.data(), n * n};
+  const SignedCoefficient sc = solveSignConstraints(
+      -num / den, samples,
+      [&](int i) { return farFromSurface(ref, r[i], ref.gradient(faceLatticePoint<n>(f, i % n, i / n))); },
+      [](int) { return false; });
   FaceResult out;
-  out.ok = interval.feasible();
-  out.coefficient = out.ok ? interval.clamp(w) : w;
-  if (!std::isfinite(out.coefficient)) out.coefficient = 0;
+  out.ok = sc.feasible;
+  out.coefficient = sc.value;
   return out;
 }
 
@@ -455,97 +412,56 @@ struct CellResult {
   bool ok = true;
 };
 
-/// The reference and the patch on a cell's n^3 lattice, with the reference's squared gradient (central
-/// differences, one-sided at the lattice border, in smallest-voxel units) for the first-order distance.
+/// Cell-local position of cell lattice point i (index a + n (b + n d)).
 template <int n>
-struct CellLattice {
-  std::array<double, n * n * n> r, g2, value, basis;
+Vec3 cellLatticePoint(int i) {
+  return Vec3(latticeCoord(i % n, n), latticeCoord(i / n % n, n), latticeCoord(i / (n * n), n));
+}
 
-  CellLattice(const PatchLines<n>& lines, const CellReference& ref) {
-    referenceCellLattice<n>(ref, r);
-    lines.lattice(value, basis);
-    int up[n], down[n];
-    double inverseSpan[n];
-    for (int i = 0; i < n; ++i) {
-      up[i] = i + 1 < n ? 1 : 0;
-      down[i] = i > 0 ? 1 : 0;
-      inverseSpan[i] = 1.0 / (latticeStep(n) * (up[i] + down[i]));
-    }
-    for (int d = 0; d < n; ++d)
-      for (int b = 0; b < n; ++b) {
-        const double* row = &r[static_cast<std::size_t>(n * (b + n * d))];
-        const double sy = inverseSpan[b] * ref.metric.y(), sz = inverseSpan[d] * ref.metric.z();
-        const int yUp = up[b] * n, yDown = down[b] * n, zUp = up[d] * n * n, zDown = down[d] * n * n;
-        for (int a = 0; a < n; ++a) {
-          const double gx = (row[a + up[a]] - row[a - down[a]]) * inverseSpan[a] * ref.metric.x();
-          const double gy = (row[a + yUp] - row[a - yDown]) * sy;
-          const double gz = (row[a + zUp] - row[a - zDown]) * sz;
-          g2[static_cast<std::size_t>(a + n * (b + n * d))] = gx * gx + gy * gy + gz * gz;
-        }
-      }
+/// The reference gradient at cell lattice point i (index a + n (b + n d)) per local unit, by central
+/// differences of the reference values r there (one-sided at the lattice border).
+template <int n>
+Vec3 latticeGradient(const double* r, int i) {
+  const int c[3] = {i % n, i / n % n, i / (n * n)};
+  constexpr int stride[3] = {1, n, n * n};
+  Vec3 g;
+  for (int axis = 0; axis < 3; ++axis) {
+    const int up = c[axis] + 1 < n ? 1 : 0, down = c[axis] > 0 ? 1 : 0;
+    g[axis] = (r[i + up * stride[axis]] - r[i - down * stride[axis]]) / (latticeStep(n) * (up + down));
   }
-
-  bool far(std::size_t i) const { return r[i] * r[i] > kMarginVoxels * kMarginVoxels * g2[i]; }
-
-  /// The sign constraints of the samples farther than the margin from the reference surface.
-  void addFar(Interval& interval) const {
-    for (std::size_t i = 0; i < r.size(); ++i)
-      if (far(i)) interval.add(r[i] > 0, value[i], basis[i]);
-  }
-
-  /// Samples within the margin by the first-order estimate to which `central` gives the wrong sign: checked
-  /// by Newton steps on the reference, and added as constraints unless those reach the surface within
-  /// kVerifiedVoxels. Returns whether any was added.
-  bool addVerified(Interval& interval, double central, const CellReference& ref) const {
-    bool added = false;
-    for (int d = 0; d < n; ++d)
-      for (int b = 0; b < n; ++b)
-        for (int a = 0; a < n; ++a) {
-          const std::size_t i = static_cast<std::size_t>(a + n * (b + n * d));
-          if (far(i)) continue;
-          const double v = value[i] + central * basis[i];
-          if ((v > 0) == (r[i] > 0) || v == 0) continue;
-          if (referenceSurfaceWithin(ref, Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)),
-                                     r[i], kVerifiedVoxels))
-            continue;
-          interval.add(r[i] > 0, value[i], basis[i]);
-          added = true;
-        }
-    return added;
-  }
-};
+  return g;
+}
 
 CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
-  constexpr int n = kCellLattice;
+  constexpr int n = kCellLattice, nf = kOpenFaceLattice;
+  constexpr int kLattice = n * n * n;
+  // Samples: the inset cell lattice, then the lattices of the cell's faces that are not bounding planes (no
+  // crossing on their edges): the cell across has no patch there or none that joins this one, so a wrong
+  // sign on the face itself would show as a sheet, and the cell lattice stays inset from the faces.
+  std::array<double, kLattice + 6 * nf * nf> r, value, basis;
+  std::array<int, 6> openFace{};
+  int numOpen = 0;
   // Fit points lie on the lattice lines along the axis closest to the mean corner normal.
   Vec3 meanNormal = Vec3::Zero();
   for (int k = 0; k < patch.numCorners; ++k) meanNormal += patch.normal[k];
   int fitAxis = 0;
   meanNormal.cwiseAbs().maxCoeff(&fitAxis);
   const PatchLines<n> lines(patch, fitAxis);
-  const CellLattice<n> lattice(lines, ref);
-  Interval interval;
-  lattice.addFar(interval);
-  // Faces of the cell that are not bounding planes (no crossing on their edges): the cell across has no patch
-  // there or none that joins this one, so a wrong sign on the face itself would show as a sheet, and the
-  // lattice above stays inset from the faces. Their face lattices are checked too.
-  constexpr int nf = kOpenFaceLattice;
-  constexpr double margin2 = kMarginVoxels * kMarginVoxels;
-  struct OpenFace {
-    int face;
-    std::array<double, nf * nf> r, g2, value, basis;
-  };
-  std::array<OpenFace, 6> open;
-  int numOpen = 0;
+  referenceCellLattice<n>(ref, r.data());
+  lines.lattice(value.data(), basis.data());
   for (int f = 0; f < 6; ++f) {
     if ((patch.faceMask >> f) & 1) continue;
-    OpenFace& o = open[static_cast<std::size_t>(numOpen++)];
-    o.face = f;
-    referenceFaceLattice<nf>(ref, f, o.r, o.g2);
-    patchFaceLattice<nf>(patch, f, o.value, o.basis);
-    for (std::size_t i = 0; i < o.r.size(); ++i)
-      if (o.r[i] * o.r[i] > margin2 * o.g2[i]) interval.add(o.r[i] > 0, o.value[i], o.basis[i]);
+    const int offset = kLattice + nf * nf * numOpen;
+    openFace[static_cast<std::size_t>(numOpen++)] = f;
+    referenceFaceLattice<nf>(ref, f, r.data() + offset);
+    patchFaceLattice<nf>(patch, f, value.data() + offset, basis.data() + offset);
   }
+  auto position = [&](int i) {
+    if (i < kLattice) return cellLatticePoint<n>(i);
+    const int j = (i - kLattice) % (nf * nf);
+    return faceLatticePoint<nf>(openFace[static_cast<std::size_t>((i - kLattice) / (nf * nf))], j % nf,
+                                j / nf);
+  };
   // Least-squares fit to the reference surface points between lattice neighbours along the fit axis (linear
   // interpolation of the reference), where the patch is evaluated exactly.
   double num = 0, den = 0;
@@ -553,53 +469,33 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   for (int q = 0; q < n; ++q)
     for (int p = 0; p < n; ++p)
       for (int i = 0; i + 1 < n; ++i) {
-        const double r0 = lattice.r[static_cast<std::size_t>(lines.index(i, p, q))];
-        const double r1 = lattice.r[static_cast<std::size_t>(lines.index(i + 1, p, q))];
+        const double r0 = r[static_cast<std::size_t>(lines.index(i, p, q))];
+        const double r1 = r[static_cast<std::size_t>(lines.index(i + 1, p, q))];
         if ((r0 > 0) == (r1 > 0)) continue;
-        double basis;
-        const double v = lines.at(latticeCoord(i, n) + r0 / (r0 - r1) * latticeStep(n), p, q, basis);
-        num += v * basis;
-        den += basis * basis;
+        double b;
+        const double v = lines.at(latticeCoord(i, n) + r0 / (r0 - r1) * latticeStep(n), p, q, b);
+        num += v * b;
+        den += b * b;
         ++fitCount;
       }
-  CellResult out;
   const double cCentre = patch.centralBasis(Vec3(0.5, 0.5, 0.5));
   den += kRidge * cCentre * cCentre * std::max(1, fitCount);
-  const double w = fitCount > 0 ? -num / den : 0.0;
   // Samples within the margin by the first-order estimate are left free, but where the clamped coefficient
   // gives one of them the wrong sign, the estimate is checked by Newton steps on the reference; a sample that
-  // turns out farther from the surface joins the constraints. Wrong signs are rare, so this costs little.
-  auto verifyOpenFaces = [&](double central) {
-    bool added = false;
-    for (int k = 0; k < numOpen; ++k) {
-      const OpenFace& o = open[static_cast<std::size_t>(k)];
-      const auto uv = cube::otherAxes(cube::faceAxis(o.face));
-      for (int b = 0; b < nf; ++b)
-        for (int a = 0; a < nf; ++a) {
-          const std::size_t i = static_cast<std::size_t>(a + nf * b);
-          if (o.r[i] * o.r[i] > margin2 * o.g2[i]) continue;
-          const double v = o.value[i] + central * o.basis[i];
-          if ((v > 0) == (o.r[i] > 0) || v == 0) continue;
-          Vec3 x;
-          x[cube::faceAxis(o.face)] = cube::faceSide(o.face);
-          x[uv[0]] = latticeCoord(a, nf);
-          x[uv[1]] = latticeCoord(b, nf);
-          if (referenceSurfaceWithin(ref, x, o.r[i], kVerifiedVoxels)) continue;
-          interval.add(o.r[i] > 0, o.value[i], o.basis[i]);
-          added = true;
-        }
-    }
-    return added;
-  };
-  for (int pass = 0; pass < 4 && interval.feasible(); ++pass) {
-    const double central = interval.clamp(w);
-    const bool lattice6 = lattice.addVerified(interval, central, ref);
-    const bool faces = verifyOpenFaces(central);
-    if (!lattice6 && !faces) break;
-  }
-  out.ok = interval.feasible();
-  out.central = out.ok ? interval.clamp(w) : 0.0;
-  if (!std::isfinite(out.central)) out.central = 0;
+  // turns out farther than kVerifiedVoxels from the surface counts after all.
+  const SignSamples samples{r.data(), value.data(), basis.data(), kLattice + nf * nf * numOpen};
+  const SignedCoefficient sc = solveSignConstraints(
+      fitCount > 0 ? -num / den : 0.0, samples,
+      [&](int i) {
+        const Vec3 g = i < kLattice ? latticeGradient<n>(r.data(), i) : ref.gradient(position(i));
+        return farFromSurface(ref, r[static_cast<std::size_t>(i)], g);
+      },
+      [&](int i) {
+        return !referenceSurfaceWithin(ref, position(i), r[static_cast<std::size_t>(i)], kVerifiedVoxels);
+      });
+  CellResult out;
+  out.ok = sc.feasible;
+  out.central = sc.feasible ? sc.value : 0.0;
   return out;
 }
 

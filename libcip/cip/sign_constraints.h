@@ -1,0 +1,124 @@
+/// @file sign_constraints.h
+/// @brief One patch coefficient w fitted under sign constraints, checked lazily (used by patch_fitting.cpp).
+///
+/// At sample i the patch is a_i + w b_i (b_i >= 0) and should have the sign of the reference r_i. Every
+/// sample that lies away from the reference surface constrains w to a half-line; the coefficient is the
+/// fitted value clamped into the intersection, a relative margin away from its ends. Deciding whether a
+/// sample lies away from the surface needs the reference gradient, and intersecting needs a division per
+/// sample, yet a sample that the clamped value already satisfies with the margin changes nothing. So the
+/// samples are checked against the current value (a multiply-add each) and only those it fails are examined
+/// and, if they count, added; the value is clamped again and the check repeated until no sample is added.
+/// The result is the clamp into the interval of all counting samples, because a value inside the margined
+/// interval of a subset that satisfies every other sample with the margin lies inside the margined interval
+/// of all of them, where clamping gives the same value.
+#pragma once
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+namespace cip {
+
+/// Interval of a coefficient w with sign(s) * (a + w b) > 0 for all added constraints (b >= 0).
+struct CoefficientInterval {
+  static constexpr double kInf = std::numeric_limits<double>::infinity();
+  /// Relative margin of clamp: at the end t = -a / b of a constraint, a + w b >= kEps |a| needs
+  /// w >= t + kEps |t|, so the zero set stays away from the sample that defines an end.
+  static constexpr double kEps = 0.05;
+  double lo = -kInf, hi = kInf;
+  bool empty = false;
+
+  void add(bool positive, double a, double b) {
+    if (!(b > 1e-300)) {
+      empty |= (a > 0) != positive;
+      return;
+    }
+    const double bound = -a / b;
+    if (positive)
+      lo = std::max(lo, bound);
+    else
+      hi = std::min(hi, bound);
+  }
+  bool feasible() const { return !empty && lo < hi; }
+  /// `w` moved into the interval, kEps relative away from each end (the midpoint when that is empty).
+  double clamp(double w) const {
+    const double a = std::isfinite(lo) ? lo + kEps * std::abs(lo) : lo;
+    const double b = std::isfinite(hi) ? hi - kEps * std::abs(hi) : hi;
+    if (!(a <= b)) return 0.5 * (lo + hi);
+    return std::clamp(w, a, b);
+  }
+  /// Whether w meets the constraint (positive, a, b) with the margin of clamp.
+  static bool meets(bool positive, double a, double b, double w) {
+    const double v = a + w * b;
+    const double s = positive ? v : -v;
+    return s > 0 && s >= kEps * std::abs(a);
+  }
+};
+
+/// Result of solveSignConstraints.
+struct SignedCoefficient {
+  double value = 0;  ///< the clamped coefficient (the fitted one when infeasible)
+  bool feasible = true;
+};
+
+/// Samples of one fit in structure-of-arrays form: reference value minus isovalue r, the patch without the
+/// coefficient a, the coefficient's basis b.
+struct SignSamples {
+  const double* r;
+  const double* a;
+  const double* b;
+  int count;
+};
+
+/// Clamps the fitted coefficient `w` into the interval of the samples that count:
+///  - `far(i)`: sample i lies farther than the margin from the reference surface (a first-order estimate); it
+///    counts;
+///  - `confirmFar(i)`: asked once for a sample that is not far but to which the clamped value gives the wrong
+///    sign (a + w b against r, no margin); if true, the sample counts from then on.
+/// Both are called only for samples that the current value fails, so they may be expensive.
+template <class Far, class ConfirmFar>
+SignedCoefficient solveSignConstraints(double w, const SignSamples& s, Far&& far, ConfirmFar&& confirmFar) {
+  // Per sample: 0 unclassified, 1 counting (added), 2 near, 3 near and confirmed near.
+  enum : std::uint8_t { kUnknown, kCounting, kNear, kConfirmedNear };
+  thread_local std::vector<std::uint8_t> state;
+  thread_local std::vector<std::uint8_t> fails;
+  state.assign(static_cast<std::size_t>(s.count), kUnknown);
+  fails.resize(static_cast<std::size_t>(s.count));
+  CoefficientInterval interval;
+  if (!std::isfinite(w)) w = 0;
+  double value = w;
+  for (;;) {
+    // The sweep over all samples is branch-free; failures are rare and examined below.
+    bool anyFail = false;
+    for (int i = 0; i < s.count; ++i) {
+      const bool fail = !CoefficientInterval::meets(s.r[i] > 0, s.a[i], s.b[i], value);
+      fails[static_cast<std::size_t>(i)] = fail;
+      anyFail |= fail;
+    }
+    if (!anyFail) break;
+    bool added = false;
+    for (int i = 0; i < s.count; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      if (!fails[k] || state[k] == kCounting || state[k] == kConfirmedNear) continue;
+      if (state[k] == kUnknown) state[k] = far(i) ? kCounting : kNear;
+      if (state[k] == kNear) {
+        const double v = s.a[i] + value * s.b[i];
+        if ((v > 0) == (s.r[i] > 0) || v == 0) continue;
+        state[k] = confirmFar(i) ? kCounting : kConfirmedNear;
+      }
+      if (state[k] != kCounting) continue;
+      interval.add(s.r[i] > 0, s.a[i], s.b[i]);
+      added = true;
+    }
+    if (!added || !interval.feasible()) break;
+    value = interval.clamp(w);
+  }
+  SignedCoefficient out;
+  out.feasible = interval.feasible();
+  out.value = out.feasible ? interval.clamp(w) : w;
+  if (!std::isfinite(out.value)) out.value = 0;
+  return out;
+}
+
+}  // namespace cip

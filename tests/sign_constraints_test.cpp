@@ -1,0 +1,126 @@
+// The lazily checked coefficient of sign_constraints.h: the same value as clamping into the interval of every
+// counting sample, every counting sample with the right sign, and the expensive callbacks only where needed.
+#include "cip/sign_constraints.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+#include <vector>
+
+using namespace cip;
+
+namespace {
+
+struct RandomSamples {
+  std::vector<double> r, a, b;
+  std::vector<bool> far;
+  SignSamples view() const { return {r.data(), a.data(), b.data(), static_cast<int>(r.size())}; }
+};
+
+// Samples whose constraints mostly agree (a common feasible coefficient near `centre`), with a few that may
+// not; `nearFraction` of them are within the margin.
+RandomSamples randomSamples(std::mt19937& rng, int count, double nearFraction) {
+  std::uniform_real_distribution<double> u(-1, 1), unit(0, 1);
+  const double centre = 2 * u(rng);
+  RandomSamples s;
+  for (int i = 0; i < count; ++i) {
+    const double b = unit(rng) < 0.05 ? 0.0 : unit(rng);
+    // The patch a + w b has sign(r) at w = centre for most samples.
+    const double r = u(rng);
+    double a = -centre * b + (r > 0 ? 1 : -1) * 0.5 * unit(rng) * (b + 0.01);
+    if (unit(rng) < 0.03) a = -a;  // an occasional conflicting sample
+    s.r.push_back(r);
+    s.a.push_back(a);
+    s.b.push_back(b);
+    s.far.push_back(unit(rng) >= nearFraction);
+  }
+  return s;
+}
+
+}  // namespace
+
+TEST(SignConstraints, SameAsClampingIntoTheWholeInterval) {
+  std::mt19937 rng(7);
+  int feasible = 0, infeasible = 0, clamped = 0;
+  for (int trial = 0; trial < 4000; ++trial) {
+    const RandomSamples s = randomSamples(rng, 1 + trial % 300, 0.0);
+    const double w = std::uniform_real_distribution<double>(-4, 4)(rng);
+    CoefficientInterval all;
+    for (std::size_t i = 0; i < s.r.size(); ++i) all.add(s.r[i] > 0, s.a[i], s.b[i]);
+    const SignedCoefficient lazy = solveSignConstraints(
+        w, s.view(), [](int) { return true; }, [](int) { return false; });
+    ASSERT_EQ(lazy.feasible, all.feasible()) << trial;
+    if (!all.feasible()) {
+      ++infeasible;
+      continue;
+    }
+    ++feasible;
+    clamped += all.clamp(w) != w;
+    EXPECT_EQ(lazy.value, all.clamp(w)) << trial;
+    for (std::size_t i = 0; i < s.r.size(); ++i) {
+      const double v = s.a[i] + lazy.value * s.b[i];
+      EXPECT_TRUE(v == 0 || (v > 0) == (s.r[i] > 0)) << trial << " sample " << i;
+    }
+  }
+  // The trials exercise all three outcomes.
+  EXPECT_GT(feasible, 100);
+  EXPECT_GT(infeasible, 100);
+  EXPECT_GT(clamped, 100);
+}
+
+TEST(SignConstraints, NearSamplesCountOnlyWhenConfirmedFar) {
+  std::mt19937 rng(11);
+  int confirmations = 0;
+  for (int trial = 0; trial < 2000; ++trial) {
+    const RandomSamples s = randomSamples(rng, 50 + trial % 100, 0.4);
+    const double w = std::uniform_real_distribution<double>(-4, 4)(rng);
+    // Near samples with an odd index are confirmed far when asked.
+    std::vector<int> asked(s.r.size(), 0);
+    const SignedCoefficient lazy = solveSignConstraints(
+        w, s.view(), [&](int i) { return static_cast<bool>(s.far[static_cast<std::size_t>(i)]); },
+        [&](int i) {
+          EXPECT_FALSE(s.far[static_cast<std::size_t>(i)]);
+          ++asked[static_cast<std::size_t>(i)];
+          ++confirmations;
+          return i % 2 == 1;
+        });
+    for (int k : asked) EXPECT_LE(k, 1);
+    if (!lazy.feasible) continue;
+    for (std::size_t i = 0; i < s.r.size(); ++i) {
+      const double v = s.a[i] + lazy.value * s.b[i];
+      const bool right = v == 0 || (v > 0) == (s.r[i] > 0);
+      // Far samples and confirmed ones have the right sign; a near one asked and not confirmed may not.
+      if (s.far[i] || asked[i] == 0 || i % 2 == 1) {
+        EXPECT_TRUE(right) << trial << " sample " << i;
+      }
+    }
+  }
+  EXPECT_GT(confirmations, 100);
+}
+
+TEST(SignConstraints, ExaminesOnlySamplesTheValueFails) {
+  // Every sample is met by w = 0 with the margin: neither callback runs and w stays.
+  const std::vector<double> r{1, -1, 2}, a{1, -1, 0.5}, b{1, 2, 0};
+  int calls = 0;
+  const SignedCoefficient out = solveSignConstraints(
+      0.0, SignSamples{r.data(), a.data(), b.data(), 3},
+      [&](int) {
+        ++calls;
+        return true;
+      },
+      [&](int) {
+        ++calls;
+        return true;
+      });
+  EXPECT_EQ(calls, 0);
+  EXPECT_TRUE(out.feasible);
+  EXPECT_EQ(out.value, 0.0);
+}
+
+TEST(SignConstraints, ZeroBasisWithTheWrongSignIsInfeasible) {
+  const std::vector<double> r{1}, a{-1}, b{0};
+  const SignedCoefficient out = solveSignConstraints(
+      3.0, SignSamples{r.data(), a.data(), b.data(), 1}, [](int) { return true; }, [](int) { return false; });
+  EXPECT_FALSE(out.feasible);
+  EXPECT_EQ(out.value, 3.0);
+}
