@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <optional>
 #include <vector>
 
 #include "cip/cube_topology.h"
@@ -41,6 +40,8 @@ constexpr double latticeCoord(int i, int n) {
 /// the patch gives them the wrong sign and Newton steps on the reference do not reach its surface within this
 /// many voxels (the margin of countSpuriousCells is 0.5).
 constexpr double kVerifiedVoxels = 0.3;
+/// Cells per block of the fitting rounds (references kept for one block at a time).
+constexpr std::size_t kBlockCells = 4096;
 /// Weight of the ridge term of the coefficient fits (relative to a fit point at the cell or face centre).
 constexpr double kRidge = 1e-3;
 
@@ -565,6 +566,7 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
   std::vector<std::uint8_t> faceOk(faces.size(), 1), cellOk(numCells, 1);
   std::vector<double> faceCoefficient(faces.size(), 0.0);
   auto cellVertex = [&](std::size_t c, int k) { return model.corners[model.cells[c].firstCorner + k]; };
+  std::vector<CellReference> blockReference(std::min(numCells, kBlockCells));
   for (int round = 0;; ++round) {
     stats.rounds = round + 1;
     tbb::parallel_for(std::size_t(0), numVertices, [&](std::size_t v) {
@@ -572,36 +574,52 @@ FittingStats fitModelPatches(Model& model, const std::function<CellReference(std
       Vec3 n = (1 - beta) * baseNormal[v] + beta * edgeDirection[v];
       model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edgeDirection[v];
     });
-    // Faces by their computing cell, so that each cell's reference is built once for all of them.
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, numCells, 32), [&](const tbb::blocked_range<std::size_t>& r) {
-          for (std::size_t c = r.begin(); c != r.end(); ++c) {
-            std::optional<CellReference> ref;
-            for (std::int32_t i : cellFaces[c]) {
-              if (i < 0 || faces[static_cast<std::size_t>(i)].cell[0] != c ||
-                  !faceDirty[static_cast<std::size_t>(i)])
-                continue;
-              if (!ref) ref = reference(c);
-              FaceResult fr = fitFace(model, faces[static_cast<std::size_t>(i)], loops[c], *ref);
-              faceCoefficient[static_cast<std::size_t>(i)] = fr.coefficient;
-              faceOk[static_cast<std::size_t>(i)] = fr.ok;
-            }
-          }
-        });
-    for (std::size_t i = 0; i < faces.size(); ++i)
-      if (faceDirty[i])
-        for (int s = 0; s < faces[i].count; ++s)
-          model.cells[faces[i].cell[s]].faceCoefficient[faces[i].face[s]] = faceCoefficient[i];
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numCells, 32),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                        for (std::size_t c = r.begin(); c != r.end(); ++c) {
-                          if (!cellDirty[c]) continue;
-                          model.cells[c].central = 0;
-                          CellResult cr = fitCell(model.patch(c, loops[c]), reference(c));
-                          model.cells[c].central = cr.central;
-                          cellOk[c] = cr.ok;
-                        }
-                      });
+    // Cells in blocks of index order. A face is fitted by its first cell (the lowest index), so when a
+    // block's cells are fitted, every face they touch has been fitted in this block or an earlier one, and
+    // each cell's reference is built once per round for its faces and itself.
+    for (std::size_t b0 = 0; b0 < numCells; b0 += kBlockCells) {
+      const std::size_t b1 = std::min(numCells, b0 + kBlockCells);
+      auto ownedDirtyFace = [&](std::size_t c, int f) {
+        const std::int32_t i = cellFaces[c][f];
+        return i >= 0 && faces[static_cast<std::size_t>(i)].cell[0] == c &&
+               faceDirty[static_cast<std::size_t>(i)];
+      };
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(b0, b1, 32),
+                        [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t c = r.begin(); c != r.end(); ++c) {
+                            bool needed = cellDirty[c];
+                            for (int f = 0; f < 6; ++f) needed |= ownedDirtyFace(c, f);
+                            if (!needed) continue;
+                            CellReference& ref = blockReference[c - b0];
+                            ref = reference(c);
+                            for (int f = 0; f < 6; ++f) {
+                              if (!ownedDirtyFace(c, f)) continue;
+                              const auto i = static_cast<std::size_t>(cellFaces[c][f]);
+                              const FaceResult fr = fitFace(model, faces[i], loops[c], ref);
+                              faceCoefficient[i] = fr.coefficient;
+                              faceOk[i] = fr.ok;
+                            }
+                          }
+                        });
+      for (std::size_t c = b0; c < b1; ++c)
+        for (int f = 0; f < 6; ++f) {
+          if (!ownedDirtyFace(c, f)) continue;
+          const FaceEntry& face = faces[static_cast<std::size_t>(cellFaces[c][f])];
+          for (int s = 0; s < face.count; ++s)
+            model.cells[face.cell[s]].faceCoefficient[face.face[s]] =
+                faceCoefficient[static_cast<std::size_t>(cellFaces[c][f])];
+        }
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(b0, b1, 32),
+                        [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t c = r.begin(); c != r.end(); ++c) {
+                            if (!cellDirty[c]) continue;
+                            model.cells[c].central = 0;
+                            const CellResult cr = fitCell(model.patch(c, loops[c]), blockReference[c - b0]);
+                            model.cells[c].central = cr.central;
+                            cellOk[c] = cr.ok;
+                          }
+                        });
+    }
     // Isovertices of failed faces and cells move one blend level towards the edge direction.
     std::fill(bump.begin(), bump.end(), 0);
     bool any = false;
