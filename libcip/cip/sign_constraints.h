@@ -48,11 +48,14 @@ struct CoefficientInterval {
     if (!(a <= b)) return 0.5 * (lo + hi);
     return std::clamp(w, a, b);
   }
-  /// Whether w meets the constraint (positive, a, b) with the margin of clamp.
-  static bool meets(bool positive, double a, double b, double w) {
+  /// How far w meets the constraint (positive, a, b) with the margin of clamp: it does iff the slack is >= 0
+  /// (s > 0 and s >= kEps |a| for s = sign * (a + w b); the smallest normal double stands for "> 0"). NaN
+  /// does not meet it.
+  static double slack(bool positive, double a, double b, double w) {
     const double v = a + w * b;
     const double s = positive ? v : -v;
-    return s > 0 && s >= kEps * std::abs(a);
+    const double needed = kEps * std::abs(a);
+    return s - (needed > std::numeric_limits<double>::min() ? needed : std::numeric_limits<double>::min());
   }
 };
 
@@ -82,25 +85,20 @@ SignedCoefficient solveSignConstraints(double w, const SignSamples& s, Far&& far
   // Per sample: 0 unclassified, 1 counting (added), 2 near, 3 near and confirmed near.
   enum : std::uint8_t { kUnknown, kCounting, kNear, kConfirmedNear };
   thread_local std::vector<std::uint8_t> state;
-  thread_local std::vector<std::uint8_t> fails;
+  thread_local std::vector<double> slack;
   state.assign(static_cast<std::size_t>(s.count), kUnknown);
-  fails.resize(static_cast<std::size_t>(s.count));
+  slack.resize(static_cast<std::size_t>(s.count));
   CoefficientInterval interval;
   if (!std::isfinite(w)) w = 0;
   double value = w;
   for (;;) {
-    // The sweep over all samples is branch-free; failures are rare and examined below.
-    bool anyFail = false;
-    for (int i = 0; i < s.count; ++i) {
-      const bool fail = !CoefficientInterval::meets(s.r[i] > 0, s.a[i], s.b[i], value);
-      fails[static_cast<std::size_t>(i)] = fail;
-      anyFail |= fail;
-    }
-    if (!anyFail) break;
+    // The sweep over all samples is branch-free (it vectorises); failures are rare and examined below.
+    double* out = slack.data();
+    for (int i = 0; i < s.count; ++i) out[i] = CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], value);
     bool added = false;
     for (int i = 0; i < s.count; ++i) {
       const auto k = static_cast<std::size_t>(i);
-      if (!fails[k] || state[k] == kCounting || state[k] == kConfirmedNear) continue;
+      if (out[i] >= 0 || state[k] == kCounting || state[k] == kConfirmedNear) continue;
       if (state[k] == kUnknown) state[k] = far(i) ? kCounting : kNear;
       if (state[k] == kNear) {
         const double v = s.a[i] + value * s.b[i];
