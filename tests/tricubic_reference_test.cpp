@@ -110,24 +110,31 @@ TEST(TricubicReference, ValueAndGradientContinuousAcrossCells) {
 }
 
 TEST(TricubicReference, EdgeRootLiesOnTheReferenceWithItsGradientAsNormal) {
+  // Edges along every axis, inside the grid and on its faces (where the edge lies on the far side of the cell
+  // that holds it).
   DenseGrid g = test::randomVolume(6, 21);
+  TricubicInterpolant ref(g);
   int roots = 0;
-  for (std::int64_t k = 0; k < 6; ++k)
-    for (std::int64_t j = 0; j < 6; ++j)
-      for (std::int64_t i = 0; i + 1 < 6; ++i) {
-        if ((g.at(i, j, k) > 0) == (g.at(i + 1, j, k) > 0)) continue;
-        Vec3 normal;
-        const double t = cubicEdgeVertex(g, {i, j, k}, 0, 0.0, normal);
-        ASSERT_GE(t, 0.0);
-        ASSERT_LE(t, 1.0);
-        TricubicInterpolant ref(g);
-        const Vec3 p(static_cast<double>(i) + t, static_cast<double>(j), static_cast<double>(k));
-        EXPECT_NEAR(ref.value(p), 0.0, 1e-12);
-        const Vec3 gradient = ref.gradient(p);
-        EXPECT_NEAR(std::abs(normal.dot(gradient.normalized())), 1.0, 1e-9);
-        ++roots;
-      }
-  EXPECT_GT(roots, 50);
+  for (int axis = 0; axis < 3; ++axis)
+    for (std::int64_t k = 0; k < 6; ++k)
+      for (std::int64_t j = 0; j < 6; ++j)
+        for (std::int64_t i = 0; i < 6; ++i) {
+          std::array<std::int64_t, 3> p0{i, j, k}, p1 = p0;
+          if (++p1[static_cast<std::size_t>(axis)] >= 6) continue;
+          if ((g.at(p0[0], p0[1], p0[2]) > 0) == (g.at(p1[0], p1[1], p1[2]) > 0)) continue;
+          Vec3 normal;
+          const double t = cubicEdgeVertex(g, p0, axis, 0.0, normal);
+          ASSERT_GE(t, 0.0);
+          ASSERT_LE(t, 1.0);
+          Vec3 p(static_cast<double>(i), static_cast<double>(j), static_cast<double>(k));
+          p[axis] += t;
+          EXPECT_NEAR(ref.value(p), 0.0, 1e-12);
+          const Vec3 gradient = ref.gradient(p);
+          EXPECT_LT((normal - gradient.normalized()).norm(), 1e-9)
+              << axis << " " << i << " " << j << " " << k;
+          ++roots;
+        }
+  EXPECT_GT(roots, 150);
 }
 
 // A steep step next to a sample just below the isovalue: Catmull-Rom's tangent there, (100.2 - 0) / 2, would

@@ -62,6 +62,48 @@ void samplesToHermite(std::array<double, 64>& data) {
   }
 }
 
+/// The 4x4x4 samples at cell-local points -1..2 of `cell` (index i + 4 (j + 4 k)), extended beyond the grid
+/// by extendedSample.
+void sampleBlock(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
+                 std::array<double, 64>& out) {
+  const auto& dims = grid.geometry.dims;
+  if (cell[0] >= 1 && cell[1] >= 1 && cell[2] >= 1 && cell[0] + 2 < dims[0] && cell[1] + 2 < dims[1] &&
+      cell[2] + 2 < dims[2]) {
+    for (int k = 0; k < 4; ++k)
+      for (int j = 0; j < 4; ++j) {
+        const double* row =
+            &grid.values[static_cast<std::size_t>(grid.index(cell[0] - 1, cell[1] - 1 + j, cell[2] - 1 + k))];
+        std::copy(row, row + 4, out.begin() + 4 * (j + 4 * k));
+      }
+    return;
+  }
+  for (int k = 0; k < 4; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 4; ++i)
+        out[static_cast<std::size_t>(i + 4 * (j + 4 * k))] =
+            extendedSample(grid, {cell[0] - 1 + i, cell[1] - 1 + j, cell[2] - 1 + k});
+}
+
+/// Derivative along `axis` that samplesToHermite gives at sample `at` (an index 0..3 per axis into the block,
+/// with 1 or 2 along `axis`), of the samples (limited slope).
+double blockSlope(const std::array<double, 64>& block, std::array<int, 3> at, int axis) {
+  constexpr int stride[3] = {1, 4, 16};
+  const int base = at[0] + 4 * (at[1] + 4 * at[2]);
+  const double s = block[static_cast<std::size_t>(base)];
+  return limitedSlope(s - block[static_cast<std::size_t>(base - stride[axis])],
+                      block[static_cast<std::size_t>(base + stride[axis])] - s);
+}
+
+/// Mixed derivative along axes a and b that samplesToHermite gives at sample `at` (1 or 2 along both): the
+/// central difference, along the later axis of the two, of the limited slopes along the earlier one.
+double blockMixed(const std::array<double, 64>& block, std::array<int, 3> at, int a, int b) {
+  const int first = std::min(a, b), second = std::max(a, b);
+  auto ahead = at, behind = at;
+  ++ahead[second];
+  --behind[second];
+  return 0.5 * (blockSlope(block, ahead, first) - blockSlope(block, behind, first));
+}
+
 }  // namespace
 
 void hermiteWeights(double t, double* w, double* d) {
@@ -116,22 +158,7 @@ CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int
                                 double isovalue) {
   CellReference ref;
   ref.isovalue = isovalue;
-  const auto& dims = grid.geometry.dims;
-  if (cell[0] >= 1 && cell[1] >= 1 && cell[2] >= 1 && cell[0] + 2 < dims[0] && cell[1] + 2 < dims[1] &&
-      cell[2] + 2 < dims[2]) {
-    for (int k = 0; k < 4; ++k)
-      for (int j = 0; j < 4; ++j) {
-        const double* row =
-            &grid.values[static_cast<std::size_t>(grid.index(cell[0] - 1, cell[1] - 1 + j, cell[2] - 1 + k))];
-        std::copy(row, row + 4, ref.hermite.begin() + 4 * (j + 4 * k));
-      }
-  } else {
-    for (int k = 0; k < 4; ++k)
-      for (int j = 0; j < 4; ++j)
-        for (int i = 0; i < 4; ++i)
-          ref.hermite[static_cast<std::size_t>(i + 4 * (j + 4 * k))] =
-              extendedSample(grid, {cell[0] - 1 + i, cell[1] - 1 + j, cell[2] - 1 + k});
-  }
+  sampleBlock(grid, cell, ref.hermite);
   samplesToHermite(ref.hermite);
   return ref;
 }
@@ -175,14 +202,20 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
       --cell[other];
       local[other] = 1;
     }
-  const CellReference ref = tricubicReference(grid, cell, isovalue);
+  // Only the Hermite data of the edge itself is needed: along it, values and slopes at both ends; across it,
+  // the slopes and mixed derivatives at both ends (for the gradient).
+  std::array<double, 64> block;
+  sampleBlock(grid, cell, block);
+  std::array<int, 3> end0{}, end1{};
+  for (int a = 0; a < 3; ++a) end0[a] = end1[a] = 1 + static_cast<int>(local[a]);
+  end1[axis] = 2;
+  auto sample = [&](const std::array<int, 3>& at) {
+    return block[static_cast<std::size_t>(at[0] + 4 * (at[1] + 4 * at[2]))];
+  };
   // The reference along the edge: a cubic Hermite segment, in powers of t (one variable on [0, 1] with
   // coefficients of the size of the data: no cancellation to fear), evaluated by Horner.
-  int base = 0;
-  constexpr int stride[3] = {1, 4, 16};
-  for (int other : cube::otherAxes(axis)) base += 2 * static_cast<int>(local[other]) * stride[other];
-  auto at = [&](int i) { return ref.hermite[static_cast<std::size_t>(base + i * stride[axis])]; };
-  const double v0 = at(0) - isovalue, d0 = at(1), v1 = at(2) - isovalue, d1 = at(3);
+  const double v0 = sample(end0) - isovalue, d0 = blockSlope(block, end0, axis);
+  const double v1 = sample(end1) - isovalue, d1 = blockSlope(block, end1, axis);
   const double k0 = v0, k1 = d0, k2 = -3 * v0 - 2 * d0 + 3 * v1 - d1, k3 = 2 * v0 + d0 - 2 * v1 + d1;
   auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
   auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
@@ -221,9 +254,17 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
     t0 = t1;
     c0 = c1;
   }
-  local[axis] = best;
+  // The gradient there, as CellReference::gradient computes it on the edge: along the edge the cubic's
+  // derivative, across it the Hermite segment of the cross slopes and mixed derivatives.
+  double w[4], dw[4];
+  hermiteWeights(best, w, dw);
+  Vec3 gradient;
+  gradient[axis] = dw[0] * sample(end0) + dw[1] * d0 + dw[2] * sample(end1) + dw[3] * d1;
+  for (int other : cube::otherAxes(axis))
+    gradient[other] = w[0] * blockSlope(block, end0, other) + w[1] * blockMixed(block, end0, axis, other) +
+                      w[2] * blockSlope(block, end1, other) + w[3] * blockMixed(block, end1, axis, other);
   const Vec3 towardsPositive = Vec3::Unit(axis) * (v1 > 0 ? 1.0 : -1.0);
-  normal = orientCornerNormal(ref.gradient(local), towardsPositive);
+  normal = orientCornerNormal(gradient, towardsPositive);
   return best;
 }
 
