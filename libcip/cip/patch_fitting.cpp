@@ -286,16 +286,16 @@ void patchFaceLattice(const CornerPatch& patch, int f, double* value, double* ba
 /// is the cell's own interpolant, extended polynomially a little beyond the cell.
 bool referenceSurfaceWithin(const CellReference& ref, const Vec3& x0, double r0, double radius) {
   const Vec3& m = ref.metric;  // voxel coordinates y = x / m
-  Vec3 x = x0;
+  Vec3 x = x0, gradient = ref.gradient(x0);
   double value = r0;
   for (int it = 0; it < 8; ++it) {
-    const Vec3 gy = ref.gradient(x).cwiseProduct(m);
+    const Vec3 gy = gradient.cwiseProduct(m);
     const double gg = gy.squaredNorm();
     if (!(gg > 0)) return false;
     const Vec3 next = x - (value / gg) * gy.cwiseProduct(m);
     const double travelled = (next - x0).cwiseQuotient(m).norm();
     if (travelled > radius) return false;
-    const double nextValue = ref.value(next);
+    const double nextValue = ref.valueAndGradient(next, gradient);
     // A sign change between two points within the radius (a ball is convex) puts the surface within it.
     if ((nextValue > 0) != (r0 > 0) || nextValue == 0) return true;
     if (std::abs(nextValue) <= 1e-9 * std::abs(r0)) return true;

@@ -139,19 +139,38 @@ double CellReference::value(const Vec3& local) const {
 }
 
 Vec3 CellReference::gradient(const Vec3& local) const {
-  if (field) return field->gradient(geometry->indexToWorld(origin + local)).cwiseProduct(geometry->spacing);
+  Vec3 g;
+  valueAndGradient(local, g);
+  return g;
+}
+
+double CellReference::valueAndGradient(const Vec3& local, Vec3& gradient) const {
+  if (field) {
+    const Vec3 world = geometry->indexToWorld(origin + local);
+    gradient = field->gradient(world).cwiseProduct(geometry->spacing);
+    return field->value(world) - isovalue;
+  }
+  // Contracted one axis at a time: x gives values and x-derivatives per (y, z) Hermite index, y and z follow.
   double w[3][4], d[3][4];
   for (int a = 0; a < 3; ++a) hermiteWeights(local[a], w[a], d[a]);
-  Vec3 g = Vec3::Zero();
-  for (int k = 0; k < 4; ++k)
-    for (int j = 0; j < 4; ++j)
-      for (int i = 0; i < 4; ++i) {
-        const double s = hermite[static_cast<std::size_t>(i + 4 * (j + 4 * k))];
-        g.x() += d[0][i] * w[1][j] * w[2][k] * s;
-        g.y() += w[0][i] * d[1][j] * w[2][k] * s;
-        g.z() += w[0][i] * w[1][j] * d[2][k] * s;
-      }
-  return g;
+  double value = 0;
+  gradient = Vec3::Zero();
+  for (int k = 0; k < 4; ++k) {
+    double plane = 0, planeDx = 0, planeDy = 0;
+    for (int j = 0; j < 4; ++j) {
+      const double* row = &hermite[static_cast<std::size_t>(4 * (j + 4 * k))];
+      const double v = w[0][0] * row[0] + w[0][1] * row[1] + w[0][2] * row[2] + w[0][3] * row[3];
+      const double dx = d[0][0] * row[0] + d[0][1] * row[1] + d[0][2] * row[2] + d[0][3] * row[3];
+      plane += w[1][j] * v;
+      planeDx += w[1][j] * dx;
+      planeDy += d[1][j] * v;
+    }
+    value += w[2][k] * plane;
+    gradient.x() += w[2][k] * planeDx;
+    gradient.y() += w[2][k] * planeDy;
+    gradient.z() += d[2][k] * plane;
+  }
+  return value - isovalue;
 }
 
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,

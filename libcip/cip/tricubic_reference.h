@@ -49,6 +49,8 @@ struct CellReference {
   double value(const Vec3& local) const;
   /// Gradient per local (index) unit.
   Vec3 gradient(const Vec3& local) const;
+  /// value and gradient at once (cheaper than both apart).
+  double valueAndGradient(const Vec3& local, Vec3& gradient) const;
 };
 
 /// The reference of one cell of a dense grid: `cell` is the cell's lowest point in the grid's own indices. A
