@@ -45,12 +45,12 @@ constexpr std::size_t kBlockCells = 4096;
 /// Weight of the ridge term of the coefficient fits (relative to a fit point at the cell or face centre).
 constexpr double kRidge = 1e-3;
 
-/// Hermite weights and their derivatives at the n lattice coordinates (the same on every axis).
+/// Hermite weights at the n lattice coordinates (the same on every axis).
 template <int n>
 struct LatticeWeights {
-  double w[n][4], d[n][4];
+  double w[n][4];
   LatticeWeights() {
-    for (int i = 0; i < n; ++i) hermiteWeights(latticeCoord(i, n), w[i], d[i]);
+    for (int i = 0; i < n; ++i) hermiteWeights(latticeCoord(i, n), w[i], nullptr);
   }
   static const LatticeWeights& get() {
     static const LatticeWeights weights;
