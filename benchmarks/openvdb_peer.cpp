@@ -14,8 +14,9 @@ struct OpenVdbPeer::Impl {
 OpenVdbPeer::OpenVdbPeer(const cip::DenseGrid& g) : impl_(std::make_unique<Impl>()) {
   openvdb::initialize();
   const auto& d = g.geometry.dims;
-  openvdb::CoordBBox box(openvdb::Coord(0, 0, 0),
-                         openvdb::Coord(static_cast<int>(d[0] - 1), static_cast<int>(d[1] - 1), static_cast<int>(d[2] - 1)));
+  openvdb::CoordBBox box(
+      openvdb::Coord(0, 0, 0),
+      openvdb::Coord(static_cast<int>(d[0] - 1), static_cast<int>(d[1] - 1), static_cast<int>(d[2] - 1)));
   // cip stores x fastest, which is OpenVDB's LayoutXYZ with z fastest reversed: fill explicitly.
   openvdb::tools::Dense<float, openvdb::tools::LayoutZYX> dense(box);
   for (std::int64_t k = 0; k < d[2]; ++k)

@@ -1,5 +1,5 @@
-// OpenVDB's volumeToMesh run on the same samples as cip, for side-by-side extraction timings. OpenVDB headers stay in
-// openvdb_peer.cpp (they are slow to compile).
+// OpenVDB's volumeToMesh run on the same samples as cip, for side-by-side extraction timings. OpenVDB headers
+// stay in openvdb_peer.cpp (they are slow to compile).
 #pragma once
 #include <memory>
 

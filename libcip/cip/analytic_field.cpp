@@ -91,7 +91,9 @@ class Plane : public AnalyticField {
 
 }  // namespace
 
-std::vector<std::string> analyticFieldNames() { return {"sphere", "torus", "gyroid", "marschner-lobb", "plane"}; }
+std::vector<std::string> analyticFieldNames() {
+  return {"sphere", "torus", "gyroid", "marschner-lobb", "plane"};
+}
 
 std::unique_ptr<AnalyticField> makeAnalyticField(const std::string& name) {
   if (name == "sphere") return std::make_unique<Sphere>();
@@ -103,7 +105,8 @@ std::unique_ptr<AnalyticField> makeAnalyticField(const std::string& name) {
 }
 
 DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description) {
-  if (resolution < 1 || resolution > 4096) throw Error("resolution must be between 1 and 4096 cells per axis");
+  if (resolution < 1 || resolution > 4096)
+    throw Error("resolution must be between 1 and 4096 cells per axis");
   DenseGrid g;
   std::int64_t n = resolution + 1;
   g.allocate({n, n, n});

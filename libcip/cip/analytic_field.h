@@ -1,8 +1,9 @@
 /// @file analytic_field.h
 /// @brief Analytic test fields with exact values and gradients, and their sampling on a grid.
 ///
-/// Every field is defined on the box [-1,1]^3 (world units). Level-set style fields (sphere, torus) are signed
-/// distances, negative inside, isovalue 0. `resolution` N means N cells per axis (N+1 grid points, spacing 2/N).
+/// Every field is defined on the box [-1,1]^3 (world units). Level-set style fields (sphere, torus) are
+/// signed distances, negative inside, isovalue 0. `resolution` N means N cells per axis (N+1 grid points,
+/// spacing 2/N).
 ///  - sphere: |x| - 0.75
 ///  - torus: distance to a torus in the xy-plane, major radius 0.6, minor radius 0.25
 ///  - gyroid: sin(2 pi x) cos(2 pi y) + sin(2 pi y) cos(2 pi z) + sin(2 pi z) cos(2 pi x), isovalue 0

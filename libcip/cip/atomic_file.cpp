@@ -36,7 +36,8 @@ std::size_t writeFileAtomically(const std::string& path, const std::function<voi
   } catch (const std::exception& e) {
     fail(e.what());
   }
-  if (std::fflush(f) != 0 || ::fsync(::fileno(f)) != 0) fail(std::string("write failed: ") + std::strerror(errno));
+  if (std::fflush(f) != 0 || ::fsync(::fileno(f)) != 0)
+    fail(std::string("write failed: ") + std::strerror(errno));
   long size = std::ftell(f);
   if (std::fclose(f) != 0) {
     ::unlink(tmp.c_str());

@@ -8,9 +8,9 @@
 
 namespace cip {
 
-/// Writes `path` atomically: `write` receives a FILE* opened on a temporary sibling file. If `write` throws or any
-/// I/O fails, the temporary is removed, the previous `path` (if any) is left untouched, and cip::Error is thrown.
-/// Returns the number of bytes written.
+/// Writes `path` atomically: `write` receives a FILE* opened on a temporary sibling file. If `write` throws
+/// or any I/O fails, the temporary is removed, the previous `path` (if any) is left untouched, and cip::Error
+/// is thrown. Returns the number of bytes written.
 std::size_t writeFileAtomically(const std::string& path, const std::function<void(std::FILE*)>& write);
 
 /// Writes `size` bytes to `f` or throws cip::Error (used inside writeFileAtomically callbacks).

@@ -8,7 +8,9 @@ namespace cip {
 
 namespace {
 
-double dist(double ax, double ay, double bx, double by) { return std::hypot(ax - bx, ay - by); }
+double dist(double ax, double ay, double bx, double by) {
+  return std::hypot(ax - bx, ay - by);
+}
 
 struct Segment {
   int face, from, to;  // edges, oriented
@@ -24,7 +26,9 @@ bool cutsOffDiagonal03(const std::array<double, 4>& t, bool vertex0Positive) {
   return !vertex0Positive;  // tie: cut off the negative diagonal
 }
 
-int CellLoops::sideFace(int c) const { return cube::commonFace(edges[c], edges[nextCorner(c)]); }
+int CellLoops::sideFace(int c) const {
+  return cube::commonFace(edges[c], edges[nextCorner(c)]);
+}
 
 int CellLoops::nextCorner(int c) const {
   int start = 0;
@@ -42,7 +46,8 @@ CellLoops buildCellLoops(std::uint8_t config, std::uint8_t pairing03Mask) {
   Segment segs[12];
   int numSegs = 0;
   auto positive = [&](int v) { return ((config >> v) & 1) != 0; };
-  // Orients a segment on face f between edges e1, e2 so that the positive side is on its left seen from outside.
+  // Orients a segment on face f between edges e1, e2 so that the positive side is on its left seen from
+  // outside.
   auto addSegment = [&](int f, int e1, int e2) {
     int axis = faceAxis(f);
     double n[3] = {0, 0, 0};

@@ -24,10 +24,12 @@ std::int64_t checkedVolumeSize(const std::array<std::int64_t, 3>& dims, std::siz
   std::int64_t n = 1;
   for (auto d : dims) {
     if (d < 0) throw Error("invalid volume dimensions " + describe() + ": negative extent");
-    if (__builtin_mul_overflow(n, d, &n)) throw Error("volume dimensions " + describe() + " overflow 64 bits");
+    if (__builtin_mul_overflow(n, d, &n))
+      throw Error("volume dimensions " + describe() + " overflow 64 bits");
   }
   std::uint64_t bytes = 0;
-  if (__builtin_mul_overflow(static_cast<std::uint64_t>(n), static_cast<std::uint64_t>(bytesPerElement), &bytes)) {
+  if (__builtin_mul_overflow(static_cast<std::uint64_t>(n), static_cast<std::uint64_t>(bytesPerElement),
+                             &bytes)) {
     throw Error("volume dimensions " + describe() + " overflow 64 bits");
   }
   if (bytes > maxBytes) {

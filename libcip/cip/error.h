@@ -7,7 +7,8 @@
 
 namespace cip {
 
-/// Thrown for any user-facing failure (bad file, bad parameter, bad data). CLIs print what() and exit non-zero.
+/// Thrown for any user-facing failure (bad file, bad parameter, bad data). CLIs print what() and exit
+/// non-zero.
 class Error : public std::runtime_error {
  public:
   explicit Error(const std::string& message) : std::runtime_error(message) {}

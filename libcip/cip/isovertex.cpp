@@ -9,9 +9,12 @@ namespace cip {
 
 const char* toString(NormalMode mode) {
   switch (mode) {
-    case NormalMode::Edge: return "edge";
-    case NormalMode::Gradient: return "gradient";
-    case NormalMode::Exact: return "exact";
+    case NormalMode::Edge:
+      return "edge";
+    case NormalMode::Gradient:
+      return "gradient";
+    case NormalMode::Exact:
+      return "exact";
   }
   return "unknown";
 }

@@ -25,7 +25,8 @@ struct IsoVertex {
   double weight = 1.0;           ///< corner coefficient a_c, shared by the cells around the edge
 };
 
-/// An analytic scalar field, for exact isovertices and gradients. Coordinates and gradients are in world units.
+/// An analytic scalar field, for exact isovertices and gradients. Coordinates and gradients are in world
+/// units.
 class ScalarField {
  public:
   virtual ~ScalarField() = default;
@@ -36,13 +37,14 @@ class ScalarField {
 /// Parameter in [0,1] of the isovalue crossing on an edge with end values v0, v1 (linear interpolation).
 double linearCrossing(double v0, double v1, double isovalue);
 
-/// Root of field - isovalue on the world segment a..b, bracketed by the caller (signs differ at the ends); returns
-/// its parameter in [0,1] to double precision (Illinois regula falsi with bisection safeguard).
+/// Root of field - isovalue on the world segment a..b, bracketed by the caller (signs differ at the ends);
+/// returns its parameter in [0,1] to double precision (Illinois regula falsi with bisection safeguard).
 double exactCrossing(const ScalarField& field, const Vec3& a, const Vec3& b, double isovalue);
 
-/// Makes `normal` (index space) a unit vector pointing into the half-space of `towardsPositive` (a unit edge direction
-/// towards the edge's positive vertex) by at least a minimal angle; a zero or non-finite normal becomes the edge
-/// direction. A corner plane that leans the wrong way would give the patch the wrong sign at its own isovertex.
+/// Makes `normal` (index space) a unit vector pointing into the half-space of `towardsPositive` (a unit edge
+/// direction towards the edge's positive vertex) by at least a minimal angle; a zero or non-finite normal
+/// becomes the edge direction. A corner plane that leans the wrong way would give the patch the wrong sign at
+/// its own isovertex.
 Vec3 orientCornerNormal(const Vec3& normal, const Vec3& towardsPositive);
 
 }  // namespace cip

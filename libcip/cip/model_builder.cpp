@@ -371,7 +371,8 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
           }
         });
     if (options.fitCoefficients && options.method == PatchMethod::Fitted) {
-      // Reference: the analytic field in exact mode, else the monotone tricubic interpolant of the cell's brick.
+      // Reference: the analytic field in exact mode, else the monotone tricubic interpolant of the cell's
+      // brick.
       const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
       FittingStats stats = fitModelPatches(model, [&](std::size_t c) {
         auto gc = global.coords(cells[c].key);

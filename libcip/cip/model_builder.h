@@ -1,6 +1,7 @@
 /// @file model_builder.h
-/// @brief Builds a corner-patch model from sampled volumes, in parallel (TBB). The model is identical, byte for byte
-/// once written, for any number of threads: every table is ordered by grid keys, never by completion order.
+/// @brief Builds a corner-patch model from sampled volumes, in parallel (TBB). The model is identical, byte
+/// for byte once written, for any number of threads: every table is ordered by grid keys, never by completion
+/// order.
 #pragma once
 #include <functional>
 #include <vector>
@@ -13,9 +14,10 @@ struct FittingStats;  // patch_fitting.h
 
 /// How the central coefficient w of each cell is set.
 enum class CentralRule : std::uint8_t {
-  Zero = 0,      ///< w = 0 (the paper's examples)
-  Interior = 1,  ///< eq. 6 at the reference surface's point on the line through the cell centre along the mean
-                 ///< corner normal (reference: the analytic field in exact mode, else the trilinear interpolant)
+  Zero = 0,  ///< w = 0 (the paper's examples)
+  Interior =
+      1,  ///< eq. 6 at the reference surface's point on the line through the cell centre along the mean
+          ///< corner normal (reference: the analytic field in exact mode, else the trilinear interpolant)
 };
 
 struct BuildOptions {
@@ -41,12 +43,13 @@ struct BuildOptions {
   std::function<void(double)> progress;
 };
 
-/// A dense block of a possibly sparse volume. Bricks share their border points: each cell belongs to one brick.
+/// A dense block of a possibly sparse volume. Bricks share their border points: each cell belongs to one
+/// brick.
 struct GridBrick {
-  const DenseGrid* grid = nullptr;         ///< samples; only its values and dims are used
-  std::array<std::int64_t, 3> offset{};    ///< global index of the brick's point (0,0,0)
-  std::array<std::int64_t, 3> cellBegin{}; ///< first cell to build, brick-local index
-  std::array<std::int64_t, 3> cellEnd{};   ///< one past the last cell to build, brick-local index
+  const DenseGrid* grid = nullptr;          ///< samples; only its values and dims are used
+  std::array<std::int64_t, 3> offset{};     ///< global index of the brick's point (0,0,0)
+  std::array<std::int64_t, 3> cellBegin{};  ///< first cell to build, brick-local index
+  std::array<std::int64_t, 3> cellEnd{};    ///< one past the last cell to build, brick-local index
 };
 
 /// Builds the model of a dense grid (all its cells). Throws cip::Error on NaN/Inf corner values unless
@@ -54,8 +57,8 @@ struct GridBrick {
 Model buildModel(const DenseGrid& grid, const BuildOptions& options);
 
 /// Builds one model from bricks placed in a global grid (`geometry`: global dims, origin and spacing).
-Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bricks, const BuildOptions& options,
-                 const std::string& source);
+Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
+                 const BuildOptions& options, const std::string& source);
 
 /// The patch of a cell from its corner data: loops, pairings, face coefficients (eq. 5) and, for
 /// CentralRule::Zero, w = 0. Used by the builder; exposed for tests and single-cell tools.

@@ -33,7 +33,8 @@ class Writer {
 
 class Reader {
  public:
-  Reader(const std::uint8_t* data, std::size_t size, const std::string& name) : d_(data), n_(size), name_(name) {}
+  Reader(const std::uint8_t* data, std::size_t size, const std::string& name)
+      : d_(data), n_(size), name_(name) {}
   template <class T>
   T get(const char* what) {
     need(sizeof(T), what);
@@ -54,7 +55,9 @@ class Reader {
   std::size_t pos() const { return pos_; }
   const std::uint8_t* here() const { return d_ + pos_; }
   void skip(std::size_t bytes) { pos_ += bytes; }
-  [[noreturn]] void fail(const std::string& why) const { throw Error(name_ + ": damaged model file: " + why); }
+  [[noreturn]] void fail(const std::string& why) const {
+    throw Error(name_ + ": damaged model file: " + why);
+  }
 
  private:
   const std::uint8_t* d_;
@@ -119,12 +122,13 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   Reader r(data, size, name);
   Model m;
   r.need(sizeof(kMagic), "magic number");
-  if (std::memcmp(data, kMagic, sizeof(kMagic)) != 0) throw Error(name + ": not a cip model file (bad magic number)");
+  if (std::memcmp(data, kMagic, sizeof(kMagic)) != 0)
+    throw Error(name + ": not a cip model file (bad magic number)");
   r.skip(sizeof(kMagic));
   auto version = r.get<std::uint32_t>("version");
   if (version != kModelFileVersion) {
-    throw Error(name + ": model file version " + std::to_string(version) + " is not supported (this build reads " +
-                std::to_string(kModelFileVersion) + ")");
+    throw Error(name + ": model file version " + std::to_string(version) +
+                " is not supported (this build reads " + std::to_string(kModelFileVersion) + ")");
   }
   for (int a = 0; a < 3; ++a) {
     auto d = r.get<std::int64_t>("dims");
@@ -155,7 +159,8 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   auto numCells = r.get<std::uint64_t>("cell count");
   auto numCorners = r.get<std::uint64_t>("corner count");
   // Every count must be backed by bytes before anything is allocated.
-  if (numVertices > r.remaining() / kVertexBytes) r.fail("vertex count " + std::to_string(numVertices) + " exceeds the file");
+  if (numVertices > r.remaining() / kVertexBytes)
+    r.fail("vertex count " + std::to_string(numVertices) + " exceeds the file");
   if (numCorners > r.remaining() / 4 || numCorners > std::numeric_limits<std::uint32_t>::max())
     r.fail("corner count " + std::to_string(numCorners) + " exceeds the file");
   if (numCells > r.remaining() / 35) r.fail("cell count " + std::to_string(numCells) + " exceeds the file");
@@ -175,14 +180,18 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
     ModelCell& c = m.cells[ci];
     for (int a = 0; a < 3; ++a) {
       c.index[a] = r.get<std::uint32_t>("cell index");
-      if (c.index[a] + std::int64_t(1) >= m.geometry.dims[a]) r.fail("cell " + std::to_string(ci) + " lies outside the grid");
+      if (c.index[a] + std::int64_t(1) >= m.geometry.dims[a])
+        r.fail("cell " + std::to_string(ci) + " lies outside the grid");
     }
-    std::uint64_t key = c.index[0] + static_cast<std::uint64_t>(m.geometry.dims[0]) *
-                                         (c.index[1] + static_cast<std::uint64_t>(m.geometry.dims[1]) * c.index[2]);
-    if (ci > 0 && key <= prevKey) r.fail("cells are not in increasing grid order at cell " + std::to_string(ci));
+    std::uint64_t key =
+        c.index[0] + static_cast<std::uint64_t>(m.geometry.dims[0]) *
+                         (c.index[1] + static_cast<std::uint64_t>(m.geometry.dims[1]) * c.index[2]);
+    if (ci > 0 && key <= prevKey)
+      r.fail("cells are not in increasing grid order at cell " + std::to_string(ci));
     prevKey = key;
     c.config = r.get<std::uint8_t>("cell configuration");
-    if (c.config == 0 || c.config == 0xFF) r.fail("cell " + std::to_string(ci) + " has an empty configuration");
+    if (c.config == 0 || c.config == 0xFF)
+      r.fail("cell " + std::to_string(ci) + " has an empty configuration");
     c.pairing03 = r.get<std::uint8_t>("face pairing");
     c.numLoops = r.get<std::uint8_t>("loop count");
     for (auto& s : c.loopSize) s = r.get<std::uint8_t>("loop size");
@@ -191,11 +200,13 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
       r.fail("cell " + std::to_string(ci) + " loops do not match its configuration");
     c.firstCorner = static_cast<std::uint32_t>(cornersSoFar);
     int n = c.numCorners();
-    if (cornersSoFar + static_cast<std::uint64_t>(n) > numCorners) r.fail("more corners than the corner count");
+    if (cornersSoFar + static_cast<std::uint64_t>(n) > numCorners)
+      r.fail("more corners than the corner count");
     Vec3 origin(c.index[0], c.index[1], c.index[2]);
     for (int k = 0; k < n; ++k) {
       auto vi = r.get<std::uint32_t>("corner index");
-      if (vi >= numVertices) r.fail("vertex index " + std::to_string(vi) + " out of range in cell " + std::to_string(ci));
+      if (vi >= numVertices)
+        r.fail("vertex index " + std::to_string(vi) + " out of range in cell " + std::to_string(ci));
       // The vertex must lie on the cell edge this corner belongs to.
       int e = expected.edges[k];
       Vec3 local = m.vertices[vi].position - origin;
@@ -209,7 +220,8 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
     }
     cornersSoFar += static_cast<std::uint64_t>(n);
     std::uint8_t faces = cube::crossedFaces(c.config);
-    for (int f = 0; f < 6; ++f) c.faceCoefficient[f] = ((faces >> f) & 1) ? r.getFinite("side coefficient") : 0.0;
+    for (int f = 0; f < 6; ++f)
+      c.faceCoefficient[f] = ((faces >> f) & 1) ? r.getFinite("side coefficient") : 0.0;
     c.central = r.getFinite("central coefficient");
   }
   if (cornersSoFar != numCorners) r.fail("corner count does not match the cells");

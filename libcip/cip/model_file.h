@@ -13,8 +13,8 @@ constexpr std::uint32_t kModelFileVersion = 1;
 
 /// Serialises a model to bytes (the exact file contents).
 std::vector<std::uint8_t> serializeModel(const Model& model);
-/// Parses and validates file contents; throws cip::Error naming the first problem ("truncated", "vertex index out of
-/// range", "checksum mismatch", ...). Never allocates more than the input can back.
+/// Parses and validates file contents; throws cip::Error naming the first problem ("truncated", "vertex index
+/// out of range", "checksum mismatch", ...). Never allocates more than the input can back.
 Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& name = "model");
 
 /// Writes atomically (temporary file + rename). Returns the number of bytes written.

@@ -10,20 +10,29 @@ namespace cip {
 namespace {
 
 // Canonical edge k as a parametric segment in the face frame: start + s * dir, s in [0,1].
-Vec2 edgeStart(int k) { return k == 0 ? Vec2(0, 0) : k == 1 ? Vec2(0, 1) : k == 2 ? Vec2(0, 0) : Vec2(1, 0); }
-Vec2 edgeDir(int k) { return k < 2 ? Vec2(1, 0) : Vec2(0, 1); }
+Vec2 edgeStart(int k) {
+  return k == 0 ? Vec2(0, 0) : k == 1 ? Vec2(0, 1) : k == 2 ? Vec2(0, 0) : Vec2(1, 0);
+}
+Vec2 edgeDir(int k) {
+  return k < 2 ? Vec2(1, 0) : Vec2(0, 1);
+}
 
 // Perpendicular bounding plane through canonical edge k, restricted to the face: v, 1-v, u, 1-u.
 double perpendicularPlane(int k, const Vec2& q) {
   switch (k) {
-    case 0: return q.y();
-    case 1: return 1.0 - q.y();
-    case 2: return q.x();
-    default: return 1.0 - q.x();
+    case 0:
+      return q.y();
+    case 1:
+      return 1.0 - q.y();
+    case 2:
+      return q.x();
+    default:
+      return 1.0 - q.x();
   }
 }
 
-// Intersection of corner line k (n . (x - p) = 0) with the line of canonical edge `other`, clamped to the edge.
+// Intersection of corner line k (n . (x - p) = 0) with the line of canonical edge `other`, clamped to the
+// edge.
 Vec2 lineOnEdge(const FaceCrossings& face, int k, int other) {
   const Vec2& n = face.normal[k];
   double den = n.dot(edgeDir(other));

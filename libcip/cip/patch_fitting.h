@@ -5,7 +5,8 @@
 ///
 /// Reference: the analytic field (NormalMode::Exact), else the monotone tricubic Hermite interpolant of the
 /// samples (tricubic_reference.h). Every decision uses data that all cells sharing it see identically:
-///  - isovertex (NormalMode::Gradient): root of the reference along the grid edge, normal = its gradient there
+///  - isovertex (NormalMode::Gradient): root of the reference along the grid edge, normal = its gradient
+///  there
 ///    (a function of the grid edge's neighbourhood only, shared by its 4 cells);
 ///  - side coefficient w_f: computed once per grid face from the reference on that face, in the face's
 ///    canonical frame (faceCrossingsOf), and copied to both cells;
@@ -15,8 +16,8 @@
 /// than a margin from the reference surface. In each cell the central coefficient is fitted to interior
 /// reference surface points and clamped into the interval that keeps the reference's sign at interior lattice
 /// points away from the surface and on the cell's faces that are not bounding planes. Samples the first-order
-/// distance estimate calls near the surface are checked by Newton steps on the reference where the patch gives
-/// them the wrong sign. When an interval is empty, the face or cell fails, and the normals of all its
+/// distance estimate calls near the surface are checked by Newton steps on the reference where the patch
+/// gives them the wrong sign. When an interval is empty, the face or cell fails, and the normals of all its
 /// isovertices move one step from the gradient towards the edge direction (blend levels, shared per
 /// isovertex); the affected faces and cells are recomputed. Rounds are deterministic (decisions of a round
 /// depend only on the previous round's state), so the result does not depend on the number of threads.

@@ -12,7 +12,9 @@ ProgressBar::ProgressBar(std::string label, bool enabled)
   start_ = lastDraw_ = std::chrono::steady_clock::now();
 }
 
-ProgressBar::~ProgressBar() { finish(); }
+ProgressBar::~ProgressBar() {
+  finish();
+}
 
 void ProgressBar::update(double fraction) {
   if (!active_) return;
@@ -25,8 +27,8 @@ void ProgressBar::update(double fraction) {
   constexpr int kWidth = 30;
   int filled = static_cast<int>(fraction * kWidth);
   double seconds = std::chrono::duration<double>(now - start_).count();
-  std::fprintf(stderr, "\r%-12s [%.*s%*s] %5.1f%%  %.1fs", label_.c_str(), filled, "##############################",
-               kWidth - filled, "", 100.0 * fraction, seconds);
+  std::fprintf(stderr, "\r%-12s [%.*s%*s] %5.1f%%  %.1fs", label_.c_str(), filled,
+               "##############################", kWidth - filled, "", 100.0 * fraction, seconds);
   std::fflush(stderr);
 }
 

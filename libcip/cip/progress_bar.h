@@ -1,6 +1,6 @@
 /// @file progress_bar.h
-/// @brief A one-line progress bar on stderr for the command line tools; silent when disabled or when stderr is not
-/// a terminal. Thread-safe: update() may be called from any thread.
+/// @brief A one-line progress bar on stderr for the command line tools; silent when disabled or when stderr
+/// is not a terminal. Thread-safe: update() may be called from any thread.
 #pragma once
 #include <chrono>
 #include <mutex>

@@ -8,8 +8,8 @@
 
 namespace cip::test {
 
-/// A volume of independent uniform values in [-1, 1]: about half of its faces with four crossings are ambiguous.
-/// With `closedBorder`, border points are set to -1 so the surface is closed inside the volume.
+/// A volume of independent uniform values in [-1, 1]: about half of its faces with four crossings are
+/// ambiguous. With `closedBorder`, border points are set to -1 so the surface is closed inside the volume.
 inline DenseGrid randomVolume(int n, unsigned seed, bool closedBorder = false) {
   DenseGrid g;
   g.allocate({n, n, n});
@@ -25,8 +25,8 @@ inline DenseGrid randomVolume(int n, unsigned seed, bool closedBorder = false) {
   return g;
 }
 
-/// Corner data of one cell with sign configuration `config`: random magnitudes in [0.2, 1], isovertices by linear
-/// interpolation, random unit normals oriented towards the positive vertex (cell-local coordinates).
+/// Corner data of one cell with sign configuration `config`: random magnitudes in [0.2, 1], isovertices by
+/// linear interpolation, random unit normals oriented towards the positive vertex (cell-local coordinates).
 inline std::array<IsoVertex, 12> randomCellVertices(std::uint8_t config, std::mt19937& rng) {
   std::uniform_real_distribution<double> mag(0.2, 1.0), comp(-1.0, 1.0);
   std::array<double, 8> value;
@@ -39,7 +39,8 @@ inline std::array<IsoVertex, 12> randomCellVertices(std::uint8_t config, std::mt
     vx[e].position = Vec3(c[0], c[1], c[2]);
     vx[e].position[axis] += t;
     Vec3 towardsPositive = Vec3::Unit(axis) * (value[b] > 0 ? 1.0 : -1.0);
-    vx[e].normal = orientCornerNormal(Vec3(comp(rng), comp(rng), comp(rng)) + towardsPositive, towardsPositive);
+    vx[e].normal =
+        orientCornerNormal(Vec3(comp(rng), comp(rng), comp(rng)) + towardsPositive, towardsPositive);
   }
   return vx;
 }
