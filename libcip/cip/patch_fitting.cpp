@@ -368,19 +368,26 @@ FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& 
   double num = 0, den = 0;
   int fitCount = 0;
   auto addFit = [&](const Vec2& q0, double r0, const Vec2& q1, double r1) {
-    if ((r0 > 0) == (r1 > 0)) return;
     double t = r0 / (r0 - r1);
     FaceRestriction fr = faceRestriction(fc, q0 + t * (q1 - q0));
     num += fr.cornerPart * fr.sideBasis;
     den += fr.sideBasis * fr.sideBasis;
     ++fitCount;
   };
-  for (int b = 0; b < n; ++b)
-    for (int a = 0; a < n; ++a) {
-      Vec2 q(latticeCoord(a, n), latticeCoord(b, n));
-      if (a + 1 < n) addFit(q, r[a + n * b], Vec2(latticeCoord(a + 1, n), q.y()), r[a + 1 + n * b]);
-      if (b + 1 < n) addFit(q, r[a + n * b], Vec2(q.x(), latticeCoord(b + 1, n)), r[a + n * (b + 1)]);
-    }
+  // Sign changes between lattice neighbours as bits (most pairs have none: no branch per pair), visited in
+  // lattice order.
+  static_assert(n * n <= 64, "face lattice signs in one word");
+  std::uint64_t signs = 0, lastColumn = 0;
+  for (int k = 0; k < n * n; ++k) signs |= std::uint64_t{r[static_cast<std::size_t>(k)] > 0} << k;
+  for (int b = 0; b < n; ++b) lastColumn |= std::uint64_t{1} << (n - 1 + n * b);
+  const std::uint64_t alongU = (signs ^ (signs >> 1)) & ~lastColumn & ((std::uint64_t{1} << (n * n)) - 1);
+  const std::uint64_t alongV = (signs ^ (signs >> n)) & ((std::uint64_t{1} << (n * (n - 1))) - 1);
+  for (std::uint64_t pairs = alongU | alongV; pairs; pairs &= pairs - 1) {
+    const int k = __builtin_ctzll(pairs), a = k % n, b = k / n;
+    const Vec2 q(latticeCoord(a, n), latticeCoord(b, n));
+    if ((alongU >> k) & 1) addFit(q, r[k], Vec2(latticeCoord(a + 1, n), q.y()), r[k + 1]);
+    if ((alongV >> k) & 1) addFit(q, r[k], Vec2(q.x(), latticeCoord(b + 1, n)), r[k + n]);
+  }
   if (fitCount == 0) {
     // The reference curve passes between the samples (close to a face vertex): use the side points instead.
     std::array<std::array<int, 2>, 2> segments;
@@ -468,17 +475,23 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   double num = 0, den = 0;
   int fitCount = 0;
   for (int q = 0; q < n; ++q)
-    for (int p = 0; p < n; ++p)
-      for (int i = 0; i + 1 < n; ++i) {
+    for (int p = 0; p < n; ++p) {
+      // Sign changes along the line as bits (few lines cross the surface: no branch per pair).
+      unsigned signs = 0;
+      for (int i = 0; i < n; ++i)
+        signs |= unsigned{r[static_cast<std::size_t>(lines.index(i, p, q))] > 0} << i;
+      for (unsigned changes = (signs ^ (signs >> 1)) & ((1u << (n - 1)) - 1); changes;
+           changes &= changes - 1) {
+        const int i = __builtin_ctz(changes);
         const double r0 = r[static_cast<std::size_t>(lines.index(i, p, q))];
         const double r1 = r[static_cast<std::size_t>(lines.index(i + 1, p, q))];
-        if ((r0 > 0) == (r1 > 0)) continue;
         double b;
         const double v = lines.at(latticeCoord(i, n) + r0 / (r0 - r1) * latticeStep(n), p, q, b);
         num += v * b;
         den += b * b;
         ++fitCount;
       }
+    }
   const double cCentre = patch.centralBasis(Vec3(0.5, 0.5, 0.5));
   den += kRidge * cCentre * cCentre * std::max(1, fitCount);
   // Samples within the margin by the first-order estimate are left free, but where the clamped coefficient
