@@ -304,6 +304,9 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         throw Error("too many corners for one model");
     }
     model.corners.resize(cornerTotal);
+    // The fitted construction works on the loops again; they are kept rather than rebuilt.
+    const bool fitted = options.fitCoefficients && options.method == PatchMethod::Fitted;
+    std::vector<CellLoops> cellLoops(fitted ? cells.size() : 0);
     std::atomic<std::size_t> cellsDone{0};
     tbb::parallel_for(
         tbb::blocked_range<std::size_t>(0, cells.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
@@ -365,16 +368,17 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
             mc.central = patch.central;
             for (int k = 0; k < patch.numCorners; ++k)
               model.corners[mc.firstCorner + k] = vertexIndex[loops.edges[k]];
+            if (fitted) cellLoops[c] = loops;
             std::size_t done = ++cellsDone;
             if (done % 4096 == 0)
               progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
           }
         });
-    if (options.fitCoefficients && options.method == PatchMethod::Fitted) {
+    if (fitted) {
       // Reference: the analytic field in exact mode, else the monotone tricubic interpolant of the cell's
       // brick.
       const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
-      FittingStats stats = fitModelPatches(model, [&](std::size_t c) {
+      FittingStats stats = fitModelPatches(model, cellLoops, [&](std::size_t c) {
         auto gc = global.coords(cells[c].key);
         CellReference ref;
         if (options.normals == NormalMode::Exact) {

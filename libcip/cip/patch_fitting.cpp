@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "cip/cube_topology.h"
+#include "cip/error.h"
 #include "cip/patch_coefficients.h"
 #include "cip/sign_constraints.h"
 #include "cip/tricubic_reference.h"
@@ -515,15 +516,15 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
 
 }  // namespace
 
-FittingStats fitModelPatches(Model& model, const std::function<CellReference(std::size_t)>& reference) {
+FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
+                             const std::function<CellReference(std::size_t)>& reference) {
   FittingStats stats;
   const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
   if (numCells == 0) return stats;
   // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
   std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
   for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
-  std::vector<CellLoops> loops(numCells);
-  tbb::parallel_for(std::size_t(0), numCells, [&](std::size_t c) { loops[c] = model.loops(c); });
+  if (loops.size() != numCells) throw Error("fitModelPatches: one CellLoops per cell expected");
   for (std::size_t c = 0; c < numCells; ++c) {
     const ModelCell& cell = model.cells[c];
     for (int k = 0; k < cell.numCorners(); ++k) {

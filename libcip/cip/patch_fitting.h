@@ -45,8 +45,10 @@ struct FittingStats {
 };
 
 /// Replaces the side and central coefficients and the corner-plane normals of a model built with the paper's
-/// construction (loops, pairings and isovertex positions are kept). `reference(c)` returns the reference of
-/// cell c; it is called concurrently. Runs in the caller's TBB arena.
-FittingStats fitModelPatches(Model& model, const std::function<CellReference(std::size_t)>& reference);
+/// construction (loops, pairings and isovertex positions are kept). `loops[c]` are the loops of cell c
+/// (model.loops(c); the builder has them already). `reference(c)` returns the reference of cell c; it is
+/// called concurrently. Runs in the caller's TBB arena.
+FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
+                             const std::function<CellReference(std::size_t)>& reference);
 
 }  // namespace cip
