@@ -94,7 +94,12 @@ SignedCoefficient solveSignConstraints(double w, const SignSamples& s, Far&& far
   for (;;) {
     // The sweep over all samples is branch-free (it vectorises); failures are rare and examined below.
     double* out = slack.data();
-    for (int i = 0; i < s.count; ++i) out[i] = CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], value);
+    double failures = 0;  // counted in doubles, which keeps the loop vectorisable
+    for (int i = 0; i < s.count; ++i) {
+      out[i] = CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], value);
+      failures += out[i] >= 0 ? 0.0 : 1.0;
+    }
+    if (failures == 0) break;
     bool added = false;
     for (int i = 0; i < s.count; ++i) {
       const auto k = static_cast<std::size_t>(i);
