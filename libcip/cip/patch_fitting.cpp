@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <limits>
 #include <vector>
 
@@ -534,8 +535,19 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     }
   }
   // Grid faces with crossings, each with its (one or two) cells; the first cell (lowest index) computes it.
+  // Every cell face f = 2 axis + side lists its grid faces by key; per axis, the cells' far faces (side 1)
+  // and near faces (side 0) merge into that axis's grid faces (a shared face meets its lower cell in the
+  // first list and its upper one in the second), and the axes merge into one table in key order. Cells come
+  // in raster order, so the lists are sorted already; they are sorted here only if not.
   const auto& dims = model.geometry.dims;
-  std::vector<FaceEntry> refs;
+  std::array<std::vector<FaceEntry>, 6> sides;
+  {
+    std::array<std::size_t, 6> count{};
+    for (const CellLoops& l : loops)
+      for (int f = 0; f < 6; ++f) count[static_cast<std::size_t>(f)] += (l.faceMask >> f) & 1;
+    for (int f = 0; f < 6; ++f)
+      sides[static_cast<std::size_t>(f)].reserve(count[static_cast<std::size_t>(f)]);
+  }
   for (std::size_t c = 0; c < numCells; ++c) {
     const ModelCell& cell = model.cells[c];
     for (int f = 0; f < 6; ++f) {
@@ -550,24 +562,43 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
       e.cell[0] = static_cast<std::uint32_t>(c);
       e.face[0] = static_cast<std::int8_t>(f);
       e.count = 1;
-      refs.push_back(e);
+      sides[static_cast<std::size_t>(f)].push_back(e);
     }
   }
-  std::sort(refs.begin(), refs.end(), [](const FaceEntry& a, const FaceEntry& b) {
-    return a.key != b.key ? a.key < b.key : a.cell[0] < b.cell[0];
-  });
-  std::vector<FaceEntry> faces;
-  for (const FaceEntry& e : refs) {
-    if (!faces.empty() && faces.back().key == e.key && faces.back().count < 2) {
-      faces.back().cell[1] = e.cell[0];
-      faces.back().face[1] = e.face[0];
-      faces.back().count = 2;
-    } else {
-      faces.push_back(e);
+  auto byKey = [](const FaceEntry& x, const FaceEntry& y) {
+    return x.key != y.key ? x.key < y.key : x.cell[0] < y.cell[0];
+  };
+  for (auto& list : sides)
+    if (!std::is_sorted(list.begin(), list.end(), byKey)) std::sort(list.begin(), list.end(), byKey);
+  std::array<std::vector<FaceEntry>, 3> axisFaces;
+  for (int axis = 0; axis < 3; ++axis) {
+    const auto& lower = sides[static_cast<std::size_t>(2 * axis + 1)];  // faces of the cells below them
+    const auto& upper = sides[static_cast<std::size_t>(2 * axis)];      // faces of the cells above them
+    auto& out = axisFaces[static_cast<std::size_t>(axis)];
+    out.reserve(std::max(lower.size(), upper.size()));
+    std::size_t i = 0, j = 0;
+    while (i < lower.size() || j < upper.size()) {
+      if (j == upper.size() || (i < lower.size() && lower[i].key < upper[j].key)) {
+        out.push_back(lower[i++]);
+      } else if (i == lower.size() || upper[j].key < lower[i].key) {
+        out.push_back(upper[j++]);
+      } else {
+        FaceEntry e = lower[i++];
+        e.cell[1] = upper[j].cell[0];
+        e.face[1] = upper[j++].face[0];
+        e.count = 2;
+        out.push_back(e);
+      }
     }
   }
-  refs.clear();
-  refs.shrink_to_fit();
+  for (auto& list : sides) std::vector<FaceEntry>().swap(list);
+  std::vector<FaceEntry> faces, firstTwo;
+  firstTwo.reserve(axisFaces[0].size() + axisFaces[1].size());
+  faces.reserve(firstTwo.capacity() + axisFaces[2].size());
+  std::merge(axisFaces[0].begin(), axisFaces[0].end(), axisFaces[1].begin(), axisFaces[1].end(),
+             std::back_inserter(firstTwo), byKey);
+  std::merge(firstTwo.begin(), firstTwo.end(), axisFaces[2].begin(), axisFaces[2].end(),
+             std::back_inserter(faces), byKey);
   // Faces of each cell (index into `faces`), for dirtiness propagation.
   std::vector<std::array<std::int32_t, 6>> cellFaces(numCells);
   for (auto& cf : cellFaces) cf.fill(-1);
