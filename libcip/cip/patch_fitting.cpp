@@ -60,15 +60,16 @@ struct LatticeWeights {
   }
 };
 
-/// Reference values at the cell lattice (latticeCoord per axis, index a + n (b + n d)). The tricubic
-/// interpolant is contracted one axis at a time (the weights are the same on every axis).
+/// Reference values at the cell lattice (latticeCoord per axis; lattice point (a, b, d) over x, y, z at index
+/// a stride[0] + b stride[1] + d stride[2]). The tricubic interpolant is contracted one axis at a time (the
+/// weights are the same on every axis).
 template <int n>
-void referenceCellLattice(const CellReference& ref, double* out) {
+void referenceCellLattice(const CellReference& ref, const std::array<int, 3>& stride, double* out) {
   if (ref.field) {
     for (int d = 0; d < n; ++d)
       for (int b = 0; b < n; ++b)
         for (int a = 0; a < n; ++a)
-          out[a + n * (b + n * d)] =
+          out[a * stride[0] + b * stride[1] + d * stride[2]] =
               ref.value(Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)));
     return;
   }
@@ -85,9 +86,12 @@ void referenceCellLattice(const CellReference& ref, double* out) {
         bxy[a + n * b][k] = w[b][0] * ax[a][4 * k] + w[b][1] * ax[a][1 + 4 * k] + w[b][2] * ax[a][2 + 4 * k] +
                             w[b][3] * ax[a][3 + 4 * k];
   for (int d = 0; d < n; ++d)
-    for (int ab = 0; ab < n * n; ++ab)
-      out[ab + n * n * d] = w[d][0] * bxy[ab][0] + w[d][1] * bxy[ab][1] + w[d][2] * bxy[ab][2] +
-                            w[d][3] * bxy[ab][3] - ref.isovalue;
+    for (int b = 0; b < n; ++b)
+      for (int a = 0; a < n; ++a) {
+        const double* h = bxy[a + n * b];
+        out[a * stride[0] + b * stride[1] + d * stride[2]] =
+            w[d][0] * h[0] + w[d][1] * h[1] + w[d][2] * h[2] + w[d][3] * h[3] - ref.isovalue;
+      }
 }
 
 /// Cell-local position of lattice point (a, b) of face f (face frame: a along otherAxes[0], b along
@@ -177,8 +181,9 @@ template <int n>
 class PatchLines {
  public:
   PatchLines(const CornerPatch& patch, int lineAxis) : axis_(lineAxis), other_(cube::otherAxes(lineAxis)) {
-    constexpr int axisStride[3] = {1, n, n * n};
-    stride_ = {axisStride[axis_], axisStride[other_[0]], axisStride[other_[1]]};
+    stride_[axis_] = 1;
+    stride_[other_[0]] = n;
+    stride_[other_[1]] = n * n;
     for (int i = 0; i < n; ++i) {
       const double t = latticeCoord(i, n);
       t_[i] = t;
@@ -202,8 +207,30 @@ class PatchLines {
       for (int p = 0; p < n; ++p) c_[static_cast<std::size_t>(p + n * q)] = s_[cP][p] * s_[cQ][q];
   }
 
-  /// Lattice index (a + n (b + n d) over x, y, z) of point i along the line axis on line (p, q).
-  int index(int i, int p, int q) const { return i * stride_[0] + p * stride_[1] + q * stride_[2]; }
+  /// The cell lattice in line order: point i along the line axis on line (p, q) has index i + n (p + n q).
+  static int index(int i, int p, int q) { return i + n * (p + n * q); }
+  /// Index steps of the lattice along x, y and z.
+  const std::array<int, 3>& strides() const { return stride_; }
+  /// Cell-local position of lattice point `index`.
+  Vec3 point(int index) const {
+    Vec3 x;
+    x[axis_] = latticeCoord(index % n, n);
+    x[other_[0]] = latticeCoord(index / n % n, n);
+    x[other_[1]] = latticeCoord(index / (n * n), n);
+    return x;
+  }
+  /// Gradient (per local unit) of lattice values r at lattice point `index`, by central differences
+  /// (one-sided at the lattice border).
+  Vec3 gradient(const double* r, int index) const {
+    const int c[3] = {index % n, index / n % n, index / (n * n)};
+    const int axes[3] = {axis_, other_[0], other_[1]};
+    Vec3 g;
+    for (int k = 0; k < 3; ++k) {
+      const int up = c[k] + 1 < n ? 1 : 0, down = c[k] > 0 ? 1 : 0, step = stride_[axes[k]];
+      g[axes[k]] = (r[index + up * step] - r[index - down * step]) / (latticeStep(n) * (up + down));
+    }
+    return g;
+  }
 
   /// valueWithoutCentral and centralBasis at every lattice point.
   void lattice(double* value, double* basis) const {
@@ -220,11 +247,9 @@ class PatchLines {
           const double a = a_[m][pq], b = b_[m][pq];
           for (int i = 0; i < n; ++i) v[i] += s_[m][i] * (a + t_[i] * b);
         }
-        const int base = p * stride_[1] + q * stride_[2];
         for (int i = 0; i < n; ++i) {
-          const auto idx = static_cast<std::size_t>(base + i * stride_[0]);
-          value[idx] = v[i];
-          basis[idx] = s_[central_][i] * c_[pq];
+          value[index(i, p, q)] = v[i];
+          basis[index(i, p, q)] = s_[central_][i] * c_[pq];
         }
       }
   }
@@ -242,7 +267,7 @@ class PatchLines {
  private:
   int axis_;
   std::array<int, 2> other_;
-  std::array<int, 3> stride_;  ///< lattice index steps along the line axis and the two others
+  std::array<int, 3> stride_;  ///< lattice index steps along x, y, z
   int central_ = 0;
   unsigned used_ = 0;
   double t_[n], s_[4][n];
@@ -422,26 +447,6 @@ struct CellResult {
   bool ok = true;
 };
 
-/// Cell-local position of cell lattice point i (index a + n (b + n d)).
-template <int n>
-Vec3 cellLatticePoint(int i) {
-  return Vec3(latticeCoord(i % n, n), latticeCoord(i / n % n, n), latticeCoord(i / (n * n), n));
-}
-
-/// The reference gradient at cell lattice point i (index a + n (b + n d)) per local unit, by central
-/// differences of the reference values r there (one-sided at the lattice border).
-template <int n>
-Vec3 latticeGradient(const double* r, int i) {
-  const int c[3] = {i % n, i / n % n, i / (n * n)};
-  constexpr int stride[3] = {1, n, n * n};
-  Vec3 g;
-  for (int axis = 0; axis < 3; ++axis) {
-    const int up = c[axis] + 1 < n ? 1 : 0, down = c[axis] > 0 ? 1 : 0;
-    g[axis] = (r[i + up * stride[axis]] - r[i - down * stride[axis]]) / (latticeStep(n) * (up + down));
-  }
-  return g;
-}
-
 CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   constexpr int n = kCellLattice, nf = kOpenFaceLattice;
   constexpr int kLattice = n * n * n;
@@ -457,7 +462,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   int fitAxis = 0;
   meanNormal.cwiseAbs().maxCoeff(&fitAxis);
   const PatchLines<n> lines(patch, fitAxis);
-  referenceCellLattice<n>(ref, r.data());
+  referenceCellLattice<n>(ref, lines.strides(), r.data());
   lines.lattice(value.data(), basis.data());
   for (int f = 0; f < 6; ++f) {
     if ((patch.faceMask >> f) & 1) continue;
@@ -467,7 +472,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
     patchFaceLattice<nf>(patch, f, value.data() + offset, basis.data() + offset);
   }
   auto position = [&](int i) {
-    if (i < kLattice) return cellLatticePoint<n>(i);
+    if (i < kLattice) return lines.point(i);
     const int j = (i - kLattice) % (nf * nf);
     return faceLatticePoint<nf>(openFace[static_cast<std::size_t>((i - kLattice) / (nf * nf))], j % nf,
                                 j / nf);
@@ -503,7 +508,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   const SignedCoefficient sc = solveSignConstraints(
       fitCount > 0 ? -num / den : 0.0, samples,
       [&](int i) {
-        const Vec3 g = i < kLattice ? latticeGradient<n>(r.data(), i) : ref.gradient(position(i));
+        const Vec3 g = i < kLattice ? lines.gradient(r.data(), i) : ref.gradient(position(i));
         return farFromSurface(ref, r[static_cast<std::size_t>(i)], g);
       },
       [&](int i) {
