@@ -40,26 +40,35 @@ double limitedSlope(double left, double right) {
   return left * right > 0 ? limited : 0.0;
 }
 
-/// Turns the 4x4x4 samples at cell-local points -1..2 into the cell's Hermite data, one axis at a time. A
-/// line of values (all its other indices already values, or samples) gets limited derivatives; a line of
-/// derivatives gets central differences (mixed derivatives).
+/// One pass of samplesToHermite along `axis` (stride 4^axis): entry low + stride (i + 4 high) is point i of
+/// the line (low, high). The lines of one `high` are contiguous in `low`, so for y and z the pass vectorises.
+template <int axis>
+void hermitePass(std::array<double, 64>& data) {
+  constexpr int stride = axis == 0 ? 1 : axis == 1 ? 4 : 16;
+  for (int high = 0; high < 16 / stride; ++high)
+    for (int low = 0; low < stride; ++low) {
+      double* line = &data[static_cast<std::size_t>(low + 4 * stride * high)];
+      // Indices of axes converted before this one are Hermite kinds (odd = derivative): x for the y and z
+      // passes, y for the z pass.
+      const int base = low + 4 * stride * high;
+      const bool values = !((axis > 0 && (base & 1)) || (axis > 1 && ((base >> 2) & 1)));
+      const double s0 = line[0], s1 = line[stride], s2 = line[2 * stride], s3 = line[3 * stride];
+      const double d1 = values ? limitedSlope(s1 - s0, s2 - s1) : 0.5 * (s2 - s0);
+      const double d2 = values ? limitedSlope(s2 - s1, s3 - s2) : 0.5 * (s3 - s1);
+      line[0] = s1;
+      line[stride] = d1;
+      line[2 * stride] = s2;
+      line[3 * stride] = d2;
+    }
+}
+
+/// Turns the 4x4x4 samples at cell-local points -1..2 into the cell's Hermite data, one axis at a time (x, y,
+/// z). A line of values (all its other indices already values, or samples) gets limited derivatives; a line
+/// of derivatives gets central differences (mixed derivatives).
 void samplesToHermite(std::array<double, 64>& data) {
-  constexpr int stride[3] = {1, 4, 16};
-  for (int axis = 0; axis < 3; ++axis) {
-    const auto other = cube::otherAxes(axis);
-    for (int q = 0; q < 4; ++q)
-      for (int p = 0; p < 4; ++p) {
-        const int base = p * stride[other[0]] + q * stride[other[1]];
-        // Indices of axes converted before this one are Hermite kinds (odd = derivative).
-        const bool values = !((other[0] < axis && (p & 1)) || (other[1] < axis && (q & 1)));
-        double s[4];
-        for (int i = 0; i < 4; ++i) s[i] = data[static_cast<std::size_t>(base + i * stride[axis])];
-        const double d1 = values ? limitedSlope(s[1] - s[0], s[2] - s[1]) : 0.5 * (s[2] - s[0]);
-        const double d2 = values ? limitedSlope(s[2] - s[1], s[3] - s[2]) : 0.5 * (s[3] - s[1]);
-        const double out[4] = {s[1], d1, s[2], d2};
-        for (int i = 0; i < 4; ++i) data[static_cast<std::size_t>(base + i * stride[axis])] = out[i];
-      }
-  }
+  hermitePass<0>(data);
+  hermitePass<1>(data);
+  hermitePass<2>(data);
 }
 
 /// The 4x4x4 samples at cell-local points -1..2 of `cell` (index i + 4 (j + 4 k)), extended beyond the grid
