@@ -154,22 +154,45 @@ double squares(int m, double t) {
   return s;
 }
 
-/// Calls fn(coefficient, plane normal, plane offset, squared-face mask) for every term of
-/// valueWithoutCentral: a corner term's plane is its corner plane, a side term's plane the constant 1 (normal
-/// 0, offset 1).
-template <class F>
-void forEachTermWithoutCentral(const CornerPatch& patch, F&& fn) {
-  std::array<PatchTerm, CornerPatch::kMaxTerms> terms;
-  const int count = patch.terms(terms);
-  for (int k = 0; k < count; ++k) {
-    const PatchTerm& t = terms[static_cast<std::size_t>(k)];
-    if (t.corner >= 0)
-      fn(t.coefficient, patch.normal[t.corner], -patch.normal[t.corner].dot(patch.point[t.corner]),
-         t.faceSquares);
-    else if (t.faceSquares != patch.faceMask)
-      fn(t.coefficient, Vec3::Zero(), 1.0, t.faceSquares);
+/// The terms of valueWithoutCentral as coefficient * (normal . x + offset) * squared face planes (mask): a
+/// corner term's factor is its corner plane, a side term's the constant 1 (normal 0, offset 1). Listed once
+/// per cell for all its lattices.
+struct LinearTerms {
+  struct Term {
+    double coefficient = 0;
+    Vec3 normal = Vec3::Zero();
+    double offset = 0;
+    std::uint8_t mask = 0;
+  };
+  std::array<Term, CornerPatch::kMaxTerms> term;
+  int count = 0;
+  std::uint8_t faceMask = 0;  ///< the patch's bounding planes (the central term's mask)
+
+  explicit LinearTerms(const CornerPatch& patch) : faceMask(patch.faceMask) {
+    std::array<PatchTerm, CornerPatch::kMaxTerms> terms;
+    const int n = patch.terms(terms);
+    for (int k = 0; k < n; ++k) {
+      const PatchTerm& t = terms[static_cast<std::size_t>(k)];
+      if (t.corner < 0 && t.faceSquares == patch.faceMask) continue;  // the central term
+      Term& out = term[static_cast<std::size_t>(count++)];
+      out.coefficient = t.coefficient;
+      out.mask = t.faceSquares;
+      if (t.corner >= 0) {
+        out.normal = patch.normal[t.corner];
+        out.offset = -patch.normal[t.corner].dot(patch.point[t.corner]);
+      } else {
+        out.offset = 1;
+      }
+    }
   }
-}
+  template <class F>
+  void forEach(F&& fn) const {
+    for (int k = 0; k < count; ++k) {
+      const Term& t = term[static_cast<std::size_t>(k)];
+      fn(t.coefficient, t.normal, t.offset, t.mask);
+    }
+  }
+};
 
 /// The patch on the lattice lines of a cell along one axis L (the other two axes at lattice coordinates):
 /// every term is a corner plane (linear) times squared face planes, each depending on one coordinate, so on
@@ -180,7 +203,7 @@ void forEachTermWithoutCentral(const CornerPatch& patch, F&& fn) {
 template <int n>
 class PatchLines {
  public:
-  PatchLines(const CornerPatch& patch, int lineAxis) : axis_(lineAxis), other_(cube::otherAxes(lineAxis)) {
+  PatchLines(const LinearTerms& terms, int lineAxis) : axis_(lineAxis), other_(cube::otherAxes(lineAxis)) {
     stride_[axis_] = 1;
     stride_[other_[0]] = n;
     stride_[other_[1]] = n * n;
@@ -200,9 +223,9 @@ class PatchLines {
           a_[mL][pq] += across * (normal[other_[0]] * t_[p] + normal[other_[1]] * t_[q] + offset);
         }
     };
-    forEachTermWithoutCentral(patch, add);
-    central_ = pattern(patch.faceMask, axis_);
-    const int cP = pattern(patch.faceMask, other_[0]), cQ = pattern(patch.faceMask, other_[1]);
+    terms.forEach(add);
+    central_ = pattern(terms.faceMask, axis_);
+    const int cP = pattern(terms.faceMask, other_[0]), cQ = pattern(terms.faceMask, other_[1]);
     for (int q = 0; q < n; ++q)
       for (int p = 0; p < n; ++p) c_[static_cast<std::size_t>(p + n * q)] = s_[cP][p] * s_[cQ][q];
   }
@@ -278,7 +301,7 @@ class PatchLines {
 /// valueWithoutCentral and centralBasis of a patch on face f's lattice (face frame, index a + n b), by
 /// separable products as in PatchLines.
 template <int n>
-void patchFaceLattice(const CornerPatch& patch, int f, double* value, double* basis) {
+void patchFaceLattice(const LinearTerms& terms, int f, double* value, double* basis) {
   const int axis = cube::faceAxis(f);
   const double side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
@@ -299,10 +322,10 @@ void patchFaceLattice(const CornerPatch& patch, int f, double* value, double* ba
       for (int a = 0; a < n; ++a) value[a + n * b] += rowScale * su[a] * (rowConstant + normal[uv[0]] * t[a]);
     }
   };
-  forEachTermWithoutCentral(patch, add);
-  const double across = squares(pattern(patch.faceMask, axis), side);
-  const double* su = sq[pattern(patch.faceMask, uv[0])];
-  const double* sv = sq[pattern(patch.faceMask, uv[1])];
+  terms.forEach(add);
+  const double across = squares(pattern(terms.faceMask, axis), side);
+  const double* su = sq[pattern(terms.faceMask, uv[0])];
+  const double* sv = sq[pattern(terms.faceMask, uv[1])];
   for (int b = 0; b < n; ++b)
     for (int a = 0; a < n; ++a) basis[a + n * b] = across * su[a] * sv[b];
 }
@@ -461,7 +484,8 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   for (int k = 0; k < patch.numCorners; ++k) meanNormal += patch.normal[k];
   int fitAxis = 0;
   meanNormal.cwiseAbs().maxCoeff(&fitAxis);
-  const PatchLines<n> lines(patch, fitAxis);
+  const LinearTerms terms(patch);
+  const PatchLines<n> lines(terms, fitAxis);
   referenceCellLattice<n>(ref, lines.strides(), r.data());
   lines.lattice(value.data(), basis.data());
   for (int f = 0; f < 6; ++f) {
@@ -469,7 +493,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
     const int offset = kLattice + nf * nf * numOpen;
     openFace[static_cast<std::size_t>(numOpen++)] = f;
     referenceFaceLattice<nf>(ref, f, r.data() + offset);
-    patchFaceLattice<nf>(patch, f, value.data() + offset, basis.data() + offset);
+    patchFaceLattice<nf>(terms, f, value.data() + offset, basis.data() + offset);
   }
   auto position = [&](int i) {
     if (i < kLattice) return lines.point(i);
