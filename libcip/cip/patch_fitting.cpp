@@ -7,6 +7,7 @@
 #include <cmath>
 #include <iterator>
 #include <limits>
+#include <optional>
 #include <vector>
 
 #include "cip/cube_topology.h"
@@ -404,12 +405,10 @@ struct FaceResult {
   bool ok = true;
 };
 
-FaceResult fitFace(const Model& model, const FaceEntry& entry, const CellLoops& loops,
-                   const CellReference& ref) {
-  const std::size_t c = entry.cell[0];
-  const int f = entry.face[0];
-  CornerPatch patch = model.patch(c, loops);
-  FaceCrossings fc = faceCrossingsOf(patch, f, (model.cells[c].pairing03 >> f) & 1);
+/// The side coefficient of face f of a cell (its first cell) with corner data `patch` (coefficients unused),
+/// ambiguous-face pairings `pairing03` and reference `ref`.
+FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, const CellReference& ref) {
+  FaceCrossings fc = faceCrossingsOf(patch, f, (pairing03 >> f) & 1);
   constexpr int n = kFaceLattice;
   std::array<double, n * n> r, cornerPart, sideBasis;
   referenceFaceLattice<n>(ref, f, r.data());
@@ -666,10 +665,12 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                             if (!needed) continue;
                             CellReference& ref = blockReference[c - b0];
                             ref = reference(c);
+                            std::optional<CornerPatch> patch;
                             for (int f = 0; f < 6; ++f) {
                               if (!ownedDirtyFace(c, f)) continue;
+                              if (!patch) patch = model.patch(c, loops[c]);
                               const auto i = static_cast<std::size_t>(cellFaces[c][f]);
-                              const FaceResult fr = fitFace(model, faces[i], loops[c], ref);
+                              const FaceResult fr = fitFace(*patch, model.cells[c].pairing03, f, ref);
                               faceCoefficient[i] = fr.coefficient;
                               faceOk[i] = fr.ok;
                             }
