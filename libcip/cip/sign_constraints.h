@@ -74,6 +74,11 @@ struct SignSamples {
   int count;
 };
 
+/// Writes CoefficientInterval::slack(r_i > 0, a_i, b_i, w) of every sample to `slack` and returns how many
+/// are negative (or NaN). The hot loop of solveSignConstraints: vectorised, with an AVX2 variant chosen at
+/// run time where the processor has it (same arithmetic: no fused multiply-add).
+int slackSweep(const SignSamples& s, double w, double* slack);
+
 /// Clamps the fitted coefficient `w` into the interval of the samples that count:
 ///  - `far(i)`: sample i lies farther than the margin from the reference surface (a first-order estimate); it
 ///    counts;
@@ -92,14 +97,9 @@ SignedCoefficient solveSignConstraints(double w, const SignSamples& s, Far&& far
   if (!std::isfinite(w)) w = 0;
   double value = w;
   for (;;) {
-    // The sweep over all samples is branch-free (it vectorises); failures are rare and examined below.
+    // The sweep over all samples is branch-free; failures are rare and examined below.
     double* out = slack.data();
-    double failures = 0;  // counted in doubles, which keeps the loop vectorisable
-    for (int i = 0; i < s.count; ++i) {
-      out[i] = CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], value);
-      failures += out[i] >= 0 ? 0.0 : 1.0;
-    }
-    if (failures == 0) break;
+    if (slackSweep(s, value, out) == 0) break;
     bool added = false;
     for (int i = 0; i < s.count; ++i) {
       const auto k = static_cast<std::size_t>(i);
