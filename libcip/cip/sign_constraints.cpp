@@ -4,9 +4,21 @@ namespace cip {
 
 // Function multi-versioning (GCC and Clang on x86-64 with ifunc support): the AVX2 clone runs the same
 // operations four doubles at a time. FMA is not enabled, so results are bit-identical to the default clone.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__SANITIZE_ADDRESS__)
+// Not under AddressSanitizer (GCC defines __SANITIZE_ADDRESS__, Clang reports the feature).
+#if defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define CIP_ADDRESS_SANITIZER 1
+#endif
+#endif
+#if defined(__SANITIZE_ADDRESS__)
+#define CIP_ADDRESS_SANITIZER 1
+#endif
+#if defined(__x86_64__) && defined(__has_attribute) && !defined(CIP_ADDRESS_SANITIZER)
+#if __has_attribute(target_clones)
 #define CIP_VECTOR_CLONES __attribute__((target_clones("avx2", "default")))
-#else
+#endif
+#endif
+#ifndef CIP_VECTOR_CLONES
 #define CIP_VECTOR_CLONES
 #endif
 
