@@ -25,18 +25,16 @@ namespace cip {
 CIP_VECTOR_CLONES int slackSweep(const SignSamples& s, double w, double* slack) {
   // Failures are counted in doubles (which keeps the loop vectorisable) in four sums, so that the additions
   // do not wait on one another.
+  auto failure = [&](int i) {
+    slack[i] = CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], w);
+    return slack[i] >= 0 ? 0.0 : 1.0;
+  };
   double failures[4] = {0, 0, 0, 0};
   int i = 0;
   for (; i + 4 <= s.count; i += 4)
-    for (int j = 0; j < 4; ++j) {
-      slack[i + j] = CoefficientInterval::slack(s.r[i + j] > 0, s.a[i + j], s.b[i + j], w);
-      failures[j] += slack[i + j] >= 0 ? 0.0 : 1.0;
-    }
+    for (int j = 0; j < 4; ++j) failures[j] += failure(i + j);
   double total = failures[0] + failures[1] + failures[2] + failures[3];
-  for (; i < s.count; ++i) {
-    slack[i] = CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], w);
-    total += slack[i] >= 0 ? 0.0 : 1.0;
-  }
+  for (; i < s.count; ++i) total += failure(i);
   return static_cast<int>(total);
 }
 
