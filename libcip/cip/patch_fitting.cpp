@@ -416,12 +416,14 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
   double num = 0, den = 0;
   int fitCount = 0;
-  auto addFit = [&](const Vec2& q0, double r0, const Vec2& q1, double r1) {
-    double t = r0 / (r0 - r1);
-    FaceRestriction fr = faceRestriction(fc, q0 + t * (q1 - q0));
+  auto addPoint = [&](const Vec2& q) {
+    const FaceRestriction fr = faceRestriction(fc, q);
     num += fr.cornerPart * fr.sideBasis;
     den += fr.sideBasis * fr.sideBasis;
     ++fitCount;
+  };
+  auto addFit = [&](const Vec2& q0, double r0, const Vec2& q1, double r1) {
+    addPoint(q0 + r0 / (r0 - r1) * (q1 - q0));
   };
   // Sign changes between lattice neighbours as bits (most pairs have none: no branch per pair), visited in
   // lattice order.
@@ -441,12 +443,7 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
     // The reference curve passes between the samples (close to a face vertex): use the side points instead.
     std::array<std::array<int, 2>, 2> segments;
     int numSegments = faceSegments(fc, segments);
-    for (int k = 0; k < numSegments; ++k) {
-      FaceRestriction fr = faceRestriction(fc, sidePoint(fc, segments[k][0], segments[k][1]));
-      num += fr.cornerPart * fr.sideBasis;
-      den += fr.sideBasis * fr.sideBasis;
-      ++fitCount;
-    }
+    for (int k = 0; k < numSegments; ++k) addPoint(sidePoint(fc, segments[k][0], segments[k][1]));
   }
   // Ridge term towards 0 at the scale of the side basis at the face centre: where every fit point has a tiny
   // side basis (a face curve hugging a face vertex) w hardly moves the face curve but would still weigh on
@@ -549,11 +546,11 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                              const std::function<CellReference(std::size_t)>& reference) {
   FittingStats stats;
   const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
+  if (loops.size() != numCells) throw Error("fitModelPatches: one CellLoops per cell expected");
   if (numCells == 0) return stats;
   // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
   std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
   for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
-  if (loops.size() != numCells) throw Error("fitModelPatches: one CellLoops per cell expected");
   for (std::size_t c = 0; c < numCells; ++c) {
     const ModelCell& cell = model.cells[c];
     for (int k = 0; k < cell.numCorners(); ++k) {
