@@ -67,11 +67,11 @@ double percent(std::int64_t count, std::size_t cells) {
 
 void analyticTable(bool quick) {
   std::printf(
-      "| field, N, mode | MC dist | MC facet normal | MC vertex normal | paper spurious | paper dist | paper "
-      "normal | "
-      "**fitted spurious** (8³/16³) | **fitted dist** | **fitted normal** (p99) | reference normal | time "
-      "paper → "
-      "fitted |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+      "| field, N, mode | MC dist | MC facet normal | MC vertex normal "
+      "| paper spurious | paper dist | paper normal "
+      "| **fitted spurious** (8³/16³) | **fitted dist** | **fitted normal** (p99) "
+      "| reference normal | time paper → fitted |\n"
+      "|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   std::vector<std::string> names = cip::analyticFieldNames();
   names.erase(std::remove(names.begin(), names.end(), "plane"), names.end());
   for (const std::string& name : names)
@@ -99,8 +99,9 @@ void analyticTable(bool quick) {
                 ? std::to_string(referenceNormalError(fittedSamples, *field, interpolant, iso)).substr(0, 5)
                 : "0 (exact)";
         std::printf(
-            "| %s %d %s | %.4f | %.2f | %.2f | %.1f %% | %.4f | %.2f | **%.2f / %.2f %%** | **%.4f** | "
-            "**%.2f** (%.1f) "
+            "| %s %d %s | %.4f | %.2f | %.2f "
+            "| %.1f %% | %.4f | %.2f "
+            "| **%.2f / %.2f %%** | **%.4f** | **%.2f** (%.1f) "
             "| %s | %.1f → %.1f ms (%.1f×) |\n",
             name.c_str(), n, cip::toString(mode), mcFacet.distanceVoxels.mean, mcFacet.normalDegrees.mean,
             mcVertex.normalDegrees.mean,
@@ -116,9 +117,9 @@ void analyticTable(bool quick) {
 
 void realTable(const std::string& shared, bool quick) {
   std::printf(
-      "\n| volume, isovalue | cells | paper wrong-sign cells | **fitted wrong-sign cells** (8³ / 16³) | "
-      "fitted dist / "
-      "normal vs the interpolant | blended isovertices, unresolved cells | time paper → fitted |\n"
+      "\n| volume, isovalue | cells | paper wrong-sign cells | **fitted wrong-sign cells** (8³ / 16³) "
+      "| fitted dist / normal vs the interpolant | blended isovertices, unresolved cells "
+      "| time paper → fitted |\n"
       "|---|---|---|---|---|---|---|\n");
   struct Case {
     const char* file;
@@ -145,8 +146,8 @@ void realTable(const std::string& shared, bool quick) {
     auto f = cip::measureFidelity(cip::samplePatchSurface(fitted, 4), reference, c.iso, voxel, false);
     const std::int64_t paperBad = cip::countSpuriousCells(paper, reference, 8, 0.5);
     std::printf(
-        "| %s %g | %zu | %lld (%.1f %%) | **%lld / %lld** | %.4f / %.2f° | %zu, %zu | %.0f → %.0f ms (%.1f×) "
-        "|\n",
+        "| %s %g | %zu | %lld (%.1f %%) | **%lld / %lld** | %.4f / %.2f° | %zu, %zu "
+        "| %.0f → %.0f ms (%.1f×) |\n",
         c.file, c.iso, fitted.cells.size(), static_cast<long long>(paperBad),
         percent(paperBad, paper.cells.size()),
         static_cast<long long>(cip::countSpuriousCells(fitted, reference, 8, 0.5)),
