@@ -22,6 +22,15 @@ class Sphere : public AnalyticField {
  public:
   std::string name() const override { return "sphere"; }
   double value(const Vec3& p) const override { return p.norm() - 0.75; }
+  void valuesOnLattice(const double* x, const double* y, const double* z, const std::array<int, 3>& count,
+                       const std::array<int, 3>& stride, double* out) const override {
+    for (int b = 0; b < count[1]; ++b)
+      for (int a = 0; a < count[0]; ++a) {
+        const double planar = x[a] * x[a] + y[b] * y[b];
+        for (int d = 0; d < count[2]; ++d)
+          out[a * stride[0] + b * stride[1] + d * stride[2]] = std::sqrt(planar + z[d] * z[d]) - 0.75;
+      }
+  }
   Vec3 gradient(const Vec3& p) const override {
     double n = p.norm();
     return n > 0 ? Vec3(p / n) : Vec3::UnitX();
@@ -35,6 +44,15 @@ class Torus : public AnalyticField {
   double value(const Vec3& p) const override {
     double q = planeLength(p.x(), p.y()) - R;
     return planeLength(q, p.z()) - r;
+  }
+  void valuesOnLattice(const double* x, const double* y, const double* z, const std::array<int, 3>& count,
+                       const std::array<int, 3>& stride, double* out) const override {
+    for (int b = 0; b < count[1]; ++b)
+      for (int a = 0; a < count[0]; ++a) {
+        const double q = planeLength(x[a], y[b]) - R;
+        for (int d = 0; d < count[2]; ++d)
+          out[a * stride[0] + b * stride[1] + d * stride[2]] = planeLength(q, z[d]) - r;
+      }
   }
   Vec3 gradient(const Vec3& p) const override {
     double rho = planeLength(p.x(), p.y());
@@ -51,6 +69,29 @@ class Gyroid : public AnalyticField {
   double value(const Vec3& p) const override {
     double x = k * p.x(), y = k * p.y(), z = k * p.z();
     return std::sin(x) * std::cos(y) + std::sin(y) * std::cos(z) + std::sin(z) * std::cos(x);
+  }
+  /// Six sines and cosines per lattice line instead of per point.
+  void valuesOnLattice(const double* x, const double* y, const double* z, const std::array<int, 3>& count,
+                       const std::array<int, 3>& stride, double* out) const override {
+    std::vector<double> trig(2 * static_cast<std::size_t>(count[0] + count[1] + count[2]));
+    double* s[3];
+    double* c[3];
+    const double* coordinate[3] = {x, y, z};
+    double* next = trig.data();
+    for (int axis = 0; axis < 3; ++axis) {
+      s[axis] = next;
+      c[axis] = next + count[axis];
+      next += 2 * count[axis];
+      for (int i = 0; i < count[axis]; ++i) {
+        s[axis][i] = std::sin(k * coordinate[axis][i]);
+        c[axis][i] = std::cos(k * coordinate[axis][i]);
+      }
+    }
+    for (int d = 0; d < count[2]; ++d)
+      for (int b = 0; b < count[1]; ++b)
+        for (int a = 0; a < count[0]; ++a)
+          out[a * stride[0] + b * stride[1] + d * stride[2]] =
+              s[0][a] * c[1][b] + s[1][b] * c[2][d] + s[2][d] * c[0][a];
   }
   Vec3 gradient(const Vec3& p) const override {
     double x = k * p.x(), y = k * p.y(), z = k * p.z();
@@ -69,6 +110,19 @@ class MarschnerLobb : public AnalyticField {
     double r = planeLength(p.x(), p.y());
     double rhoR = std::cos(2 * kPi * fM * std::cos(kPi * r / 2));
     return (1 - std::sin(kPi * p.z() / 2) + alpha * (1 + rhoR)) / (2 * (1 + alpha));
+  }
+  /// The radial term once per (x, y), the axial one once per z.
+  void valuesOnLattice(const double* x, const double* y, const double* z, const std::array<int, 3>& count,
+                       const std::array<int, 3>& stride, double* out) const override {
+    std::vector<double> axial(static_cast<std::size_t>(count[2]));
+    for (int d = 0; d < count[2]; ++d) axial[d] = std::sin(kPi * z[d] / 2);
+    for (int b = 0; b < count[1]; ++b)
+      for (int a = 0; a < count[0]; ++a) {
+        const double rhoR = std::cos(2 * kPi * fM * std::cos(kPi * planeLength(x[a], y[b]) / 2));
+        for (int d = 0; d < count[2]; ++d)
+          out[a * stride[0] + b * stride[1] + d * stride[2]] =
+              (1 - axial[d] + alpha * (1 + rhoR)) / (2 * (1 + alpha));
+      }
   }
   Vec3 gradient(const Vec3& p) const override {
     double r = planeLength(p.x(), p.y());

@@ -26,6 +26,15 @@ NormalMode parseNormalMode(const std::string& text) {
   throw Error("unknown normal mode '" + text + "' (expected edge, gradient or exact)");
 }
 
+void ScalarField::valuesOnLattice(const double* x, const double* y, const double* z,
+                                  const std::array<int, 3>& count, const std::array<int, 3>& stride,
+                                  double* out) const {
+  for (int d = 0; d < count[2]; ++d)
+    for (int b = 0; b < count[1]; ++b)
+      for (int a = 0; a < count[0]; ++a)
+        out[a * stride[0] + b * stride[1] + d * stride[2]] = value(Vec3(x[a], y[b], z[d]));
+}
+
 double linearCrossing(double v0, double v1, double isovalue) {
   double den = v1 - v0;
   if (den == 0) return 0.5;

@@ -1,6 +1,7 @@
 /// @file isovertex.h
 /// @brief Isovertices (edge crossings) and their corner planes, shared by the four cells around a grid edge.
 #pragma once
+#include <array>
 #include <cstdint>
 #include <string>
 
@@ -32,6 +33,13 @@ class ScalarField {
   virtual ~ScalarField() = default;
   virtual double value(const Vec3& world) const = 0;
   virtual Vec3 gradient(const Vec3& world) const = 0;
+  /// Values at the tensor lattice (x[a], y[b], z[d]) (world), a < count[0], b < count[1], d < count[2],
+  /// stored at out[a stride[0] + b stride[1] + d stride[2]]. Equal to value() at each point; the default
+  /// calls it, fields whose costly parts depend on fewer coordinates override it (the fitted construction
+  /// checks several hundred lattice points per cell).
+  virtual void valuesOnLattice(const double* x, const double* y, const double* z,
+                               const std::array<int, 3>& count, const std::array<int, 3>& stride,
+                               double* out) const;
 };
 
 /// Parameter in [0,1] of the isovalue crossing on an edge with end values v0, v1 (linear interpolation).

@@ -64,14 +64,34 @@ struct LatticeWeights {
 /// Reference values at the cell lattice (latticeCoord per axis; lattice point (a, b, d) over x, y, z at index
 /// a stride[0] + b stride[1] + d stride[2]). The tricubic interpolant is contracted one axis at a time (the
 /// weights are the same on every axis).
+/// World coordinates of the n lattice coordinates along each axis of an analytic reference's cell (as
+/// CellReference::value maps cell-local points).
+template <int n>
+struct WorldLattice {
+  double coordinate[3][n];
+  explicit WorldLattice(const CellReference& ref) {
+    for (int axis = 0; axis < 3; ++axis)
+      for (int i = 0; i < n; ++i)
+        coordinate[axis][i] = ref.geometry->origin[axis] +
+                              ref.geometry->spacing[axis] * (ref.origin[axis] + latticeCoord(i, n));
+  }
+};
+
+/// An analytic reference minus the isovalue at the tensor lattice given per axis by `coordinate` (world).
+void analyticLattice(const CellReference& ref, const double* const coordinate[3],
+                     const std::array<int, 3>& count, const std::array<int, 3>& stride, double* out) {
+  ref.field->valuesOnLattice(coordinate[0], coordinate[1], coordinate[2], count, stride, out);
+  for (int d = 0; d < count[2]; ++d)
+    for (int b = 0; b < count[1]; ++b)
+      for (int a = 0; a < count[0]; ++a) out[a * stride[0] + b * stride[1] + d * stride[2]] -= ref.isovalue;
+}
+
 template <int n>
 void referenceCellLattice(const CellReference& ref, const std::array<int, 3>& stride, double* out) {
   if (ref.field) {
-    for (int d = 0; d < n; ++d)
-      for (int b = 0; b < n; ++b)
-        for (int a = 0; a < n; ++a)
-          out[a * stride[0] + b * stride[1] + d * stride[2]] =
-              ref.value(Vec3(latticeCoord(a, n), latticeCoord(b, n), latticeCoord(d, n)));
+    const WorldLattice<n> world(ref);
+    const double* coordinate[3] = {world.coordinate[0], world.coordinate[1], world.coordinate[2]};
+    analyticLattice(ref, coordinate, {n, n, n}, stride, out);
     return;
   }
   const auto& w = LatticeWeights<n>::get().w;
@@ -112,13 +132,24 @@ Vec3 faceLatticePoint(int f, int a, int b) {
 /// data of the face.
 template <int n>
 void referenceFaceLattice(const CellReference& ref, int f, double* value) {
-  if (ref.field) {
-    for (int b = 0; b < n; ++b)
-      for (int a = 0; a < n; ++a) value[a + n * b] = ref.value(faceLatticePoint<n>(f, a, b));
-    return;
-  }
   const int axis = cube::faceAxis(f), side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
+  if (ref.field) {
+    const WorldLattice<n> world(ref);
+    const double plane = ref.geometry->origin[axis] + ref.geometry->spacing[axis] * (ref.origin[axis] + side);
+    const double* coordinate[3];
+    std::array<int, 3> count, stride;
+    coordinate[axis] = &plane;
+    count[axis] = 1;
+    stride[axis] = 0;
+    for (int i = 0; i < 2; ++i) {
+      coordinate[uv[i]] = world.coordinate[uv[i]];
+      count[uv[i]] = n;
+      stride[uv[i]] = i == 0 ? 1 : n;
+    }
+    analyticLattice(ref, coordinate, count, stride, value);
+    return;
+  }
   constexpr int stride[3] = {1, 4, 16};
   const int su = stride[uv[0]], sv = stride[uv[1]], sn = stride[axis];
   const auto& w = LatticeWeights<n>::get().w;
