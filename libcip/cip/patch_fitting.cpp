@@ -667,31 +667,38 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   std::vector<std::uint8_t> faceOk(faces.size(), 1), cellOk(numCells, 1);
   std::vector<double> faceCoefficient(faces.size(), 0.0);
   auto cellVertex = [&](std::size_t c, int k) { return model.corners[model.cells[c].firstCorner + k]; };
+  auto ownedDirtyFace = [&](std::size_t c, int f) {
+    const std::int32_t i = cellFaces[c][f];
+    return i >= 0 && faces[static_cast<std::size_t>(i)].cell[0] == c &&
+           faceDirty[static_cast<std::size_t>(i)];
+  };
+  // The round's cells, ascending: all of them first, then the cells of the faces touched by an isovertex
+  // whose blend level changed (a dirty face's cells are both dirty, so its first cell fits it).
+  std::vector<std::uint32_t> dirtyCells(numCells), changedVertices;
+  for (std::size_t c = 0; c < numCells; ++c) dirtyCells[c] = static_cast<std::uint32_t>(c);
+  std::vector<std::uint32_t> vertexCellStart, vertexCells;  // cells of each isovertex (built for round 1)
   std::vector<CellReference> blockReference(std::min(numCells, kBlockCells));
   for (int round = 0;; ++round) {
     stats.rounds = round + 1;
-    tbb::parallel_for(std::size_t(0), numVertices, [&](std::size_t v) {
+    auto setNormal = [&](std::size_t v) {
       double beta = kBlend[level[v]];
       Vec3 n = (1 - beta) * baseNormal[v] + beta * edgeDirection[v];
       model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edgeDirection[v];
-    });
+    };
+    if (round == 0)
+      tbb::parallel_for(std::size_t(0), numVertices, setNormal);
+    else
+      for (std::uint32_t v : changedVertices) setNormal(v);
     // Cells in blocks of index order. A face is fitted by its first cell (the lowest index), so when a
     // block's cells are fitted, every face they touch has been fitted in this block or an earlier one, and
     // each cell's reference is built once per round for its faces and itself.
-    for (std::size_t b0 = 0; b0 < numCells; b0 += kBlockCells) {
-      const std::size_t b1 = std::min(numCells, b0 + kBlockCells);
-      auto ownedDirtyFace = [&](std::size_t c, int f) {
-        const std::int32_t i = cellFaces[c][f];
-        return i >= 0 && faces[static_cast<std::size_t>(i)].cell[0] == c &&
-               faceDirty[static_cast<std::size_t>(i)];
-      };
+    for (std::size_t b0 = 0; b0 < dirtyCells.size(); b0 += kBlockCells) {
+      const std::size_t b1 = std::min(dirtyCells.size(), b0 + kBlockCells);
       tbb::parallel_for(tbb::blocked_range<std::size_t>(b0, b1, 32),
                         [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t c = r.begin(); c != r.end(); ++c) {
-                            bool needed = cellDirty[c];
-                            for (int f = 0; f < 6; ++f) needed |= ownedDirtyFace(c, f);
-                            if (!needed) continue;
-                            CellReference& ref = blockReference[c - b0];
+                          for (std::size_t j = r.begin(); j != r.end(); ++j) {
+                            const std::size_t c = dirtyCells[j];
+                            CellReference& ref = blockReference[j - b0];
                             ref = reference(c);
                             std::optional<CornerPatch> patch;
                             for (int f = 0; f < 6; ++f) {
@@ -704,8 +711,9 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                             }
                           }
                         });
-      for (std::size_t c = b0; c < b1; ++c)
+      for (std::size_t j = b0; j < b1; ++j)
         for (int f = 0; f < 6; ++f) {
+          const std::size_t c = dirtyCells[j];
           if (!ownedDirtyFace(c, f)) continue;
           const FaceEntry& face = faces[static_cast<std::size_t>(cellFaces[c][f])];
           for (int s = 0; s < face.count; ++s)
@@ -714,54 +722,82 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
         }
       tbb::parallel_for(tbb::blocked_range<std::size_t>(b0, b1, 32),
                         [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t c = r.begin(); c != r.end(); ++c) {
-                            if (!cellDirty[c]) continue;
+                          for (std::size_t j = r.begin(); j != r.end(); ++j) {
+                            const std::size_t c = dirtyCells[j];
                             model.cells[c].central = 0;
-                            const CellResult cr = fitCell(model.patch(c, loops[c]), blockReference[c - b0]);
+                            const CellResult cr = fitCell(model.patch(c, loops[c]), blockReference[j - b0]);
                             model.cells[c].central = cr.central;
                             cellOk[c] = cr.ok;
                           }
                         });
     }
-    // Isovertices of failed faces and cells move one blend level towards the edge direction.
-    std::fill(bump.begin(), bump.end(), 0);
-    bool any = false;
+    // Isovertices of failed faces and cells move one blend level towards the edge direction. Only this
+    // round's faces and cells can bump one: a failure left from an earlier round that was not refitted has
+    // all its isovertices at the last level.
+    changedVertices.clear();
     auto mark = [&](std::size_t c, std::uint16_t edgeMask) {
       const ModelCell& cell = model.cells[c];
       for (int k = 0; k < cell.numCorners(); ++k) {
         if (!((edgeMask >> loops[c].edges[k]) & 1)) continue;
-        std::uint32_t v = cellVertex(c, k);
-        if (level[v] < kMaxLevel) {
+        const std::uint32_t v = cellVertex(c, k);
+        if (level[v] < kMaxLevel && !bump[v]) {
           bump[v] = 1;
-          any = true;
+          changedVertices.push_back(v);
         }
       }
     };
-    for (std::size_t i = 0; i < faces.size(); ++i) {
-      if (faceOk[i]) continue;
-      std::uint16_t mask = 0;
-      for (int k = 0; k < 4; ++k)
-        mask = static_cast<std::uint16_t>(mask | (1u << cube::faceEdge(faces[i].face[0], k)));
-      mark(faces[i].cell[0], mask);
-    }
-    for (std::size_t c = 0; c < numCells; ++c)
+    for (std::uint32_t c : dirtyCells) {
+      for (int f = 0; f < 6; ++f) {
+        if (!ownedDirtyFace(c, f) || faceOk[static_cast<std::size_t>(cellFaces[c][f])]) continue;
+        std::uint16_t mask = 0;
+        for (int k = 0; k < 4; ++k) mask = static_cast<std::uint16_t>(mask | (1u << cube::faceEdge(f, k)));
+        mark(c, mask);
+      }
       if (!cellOk[c]) mark(c, 0xFFF);
-    if (!any) break;
-    for (std::size_t v = 0; v < numVertices; ++v) level[v] = static_cast<std::uint8_t>(level[v] + bump[v]);
-    std::fill(faceDirty.begin(), faceDirty.end(), 0);
-    std::fill(cellDirty.begin(), cellDirty.end(), 0);
-    for (std::size_t c = 0; c < numCells; ++c) {
-      const ModelCell& cell = model.cells[c];
-      for (int k = 0; k < cell.numCorners() && !cellDirty[c]; ++k)
-        if (bump[cellVertex(c, k)]) cellDirty[c] = 1;
-      if (!cellDirty[c]) continue;
-      for (int f = 0; f < 6; ++f)
-        if (cellFaces[c][f] >= 0) faceDirty[static_cast<std::size_t>(cellFaces[c][f])] = 1;
     }
-    // A face whose coefficient changes changes its other cell too.
-    for (std::size_t i = 0; i < faces.size(); ++i)
-      if (faceDirty[i])
-        for (int s = 0; s < faces[i].count; ++s) cellDirty[faces[i].cell[s]] = 1;
+    if (changedVertices.empty()) break;
+    for (std::uint32_t v : changedVertices) {
+      ++level[v];
+      bump[v] = 0;
+    }
+    if (vertexCellStart.empty()) {  // cells of each isovertex, as a compressed table
+      vertexCellStart.assign(numVertices + 1, 0);
+      for (std::size_t c = 0; c < numCells; ++c)
+        for (int k = 0; k < model.cells[c].numCorners(); ++k) ++vertexCellStart[cellVertex(c, k) + 1];
+      for (std::size_t v = 0; v < numVertices; ++v) vertexCellStart[v + 1] += vertexCellStart[v];
+      vertexCells.resize(vertexCellStart[numVertices]);
+      std::vector<std::uint32_t> fill(vertexCellStart.begin(), vertexCellStart.end() - 1);
+      for (std::size_t c = 0; c < numCells; ++c)
+        for (int k = 0; k < model.cells[c].numCorners(); ++k)
+          vertexCells[fill[cellVertex(c, k)]++] = static_cast<std::uint32_t>(c);
+    }
+    // Next round: the cells of changed isovertices, all their faces, and the other cells of those faces.
+    for (std::uint32_t c : dirtyCells) {
+      cellDirty[c] = 0;
+      for (int f = 0; f < 6; ++f)
+        if (cellFaces[c][f] >= 0) faceDirty[static_cast<std::size_t>(cellFaces[c][f])] = 0;
+    }
+    dirtyCells.clear();
+    for (std::uint32_t v : changedVertices)
+      for (std::uint32_t j = vertexCellStart[v]; j < vertexCellStart[v + 1]; ++j)
+        if (!cellDirty[vertexCells[j]]) {
+          cellDirty[vertexCells[j]] = 1;
+          dirtyCells.push_back(vertexCells[j]);
+        }
+    const std::size_t touched = dirtyCells.size();
+    for (std::size_t j = 0; j < touched; ++j)
+      for (int f = 0; f < 6; ++f) {
+        const std::int32_t i = cellFaces[dirtyCells[j]][f];
+        if (i < 0) continue;
+        faceDirty[static_cast<std::size_t>(i)] = 1;
+        const FaceEntry& face = faces[static_cast<std::size_t>(i)];
+        for (int s = 0; s < face.count; ++s)
+          if (!cellDirty[face.cell[s]]) {
+            cellDirty[face.cell[s]] = 1;
+            dirtyCells.push_back(face.cell[s]);
+          }
+      }
+    std::sort(dirtyCells.begin(), dirtyCells.end());
   }
   for (std::size_t v = 0; v < numVertices; ++v) {
     stats.blendedVertices += level[v] > 0;
