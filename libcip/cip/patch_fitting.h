@@ -35,6 +35,7 @@ namespace cip {
 
 struct FittingStats {
   int rounds = 0;                   ///< rounds run (1 = no face or cell needed a blended normal)
+  bool lastRoundUndone = false;     ///< the last round did not reduce the unresolved cells and was undone
   std::size_t blendedVertices = 0;  ///< isovertices whose normal left the gradient
   std::size_t failedFaces = 0;      ///< faces still without a sign-correct coefficient at the last level
   std::size_t failedCells = 0;      ///< cells still without a sign-correct central coefficient
