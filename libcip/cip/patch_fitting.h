@@ -19,7 +19,9 @@
 /// distance estimate calls near the surface are checked by Newton steps on the reference where the patch
 /// gives them the wrong sign. When an interval is empty, the face or cell fails, and the normals of all its
 /// isovertices move one step from the gradient towards the edge direction (blend levels, shared per
-/// isovertex); the affected faces and cells are recomputed. Rounds are deterministic (decisions of a round
+/// isovertex); the affected faces and cells are recomputed. A round that does not reduce the cells left
+/// unresolved is undone and ends the rounds (blending cannot fix a cell whose field has structure inside that
+/// its loops do not follow, and there it spreads failures). Rounds are deterministic (decisions of a round
 /// depend only on the previous round's state), so the result does not depend on the number of threads.
 /// docs/method.md has the details and the measurements.
 #pragma once
