@@ -21,6 +21,7 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
                 {"loops_per_cell", {{"1", loops[1]}, {"2", loops[2]}, {"3", loops[3]}, {"4", loops[4]}}}};
   if (s.fitting)
     j["fitting"] = {{"rounds", s.fitting->rounds},
+                    {"last_round_undone", s.fitting->lastRoundUndone},
                     {"blended_isovertices", s.fitting->blendedVertices},
                     {"unresolved_cells", s.fitting->unresolvedCells.size()}};
   j["seconds"] = s.seconds;

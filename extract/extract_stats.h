@@ -20,8 +20,8 @@ struct ExtractStats {
 };
 
 /// Writes the stats and the model's counts (non-empty cells, isovertices, corners, loops-per-cell histogram)
-/// as JSON, atomically; for the fitted method also "fitting": rounds, blended isovertices and the cells left
-/// without a sign-correct coefficient.
+/// as JSON, atomically; for the fitted method also "fitting": rounds (and whether the last one was undone),
+/// blended isovertices and the cells left without a sign-correct coefficient.
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

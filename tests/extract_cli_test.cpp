@@ -42,6 +42,9 @@ TEST(ExtractCli, StatsReportTheFittedFallback) {
             std::string::npos)
       << text;
   EXPECT_NE(text.find("\"rounds\": " + std::to_string(expected.rounds)), std::string::npos) << text;
+  EXPECT_NE(text.find(std::string("\"last_round_undone\": ") + (expected.lastRoundUndone ? "true" : "false")),
+            std::string::npos)
+      << text;
   EXPECT_NE(r.err.find(std::to_string(expected.unresolvedCells.size()) + " cells have no coefficient"),
             std::string::npos)
       << r.err;
