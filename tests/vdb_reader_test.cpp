@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 #include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <cmath>
@@ -236,7 +237,18 @@ TEST(VdbReader, Errors) {
   test::ScratchDir dir;
   std::string bytes = test::readAll(sphere);
   test::writeAll(dir.file("cut.vdb"), bytes.substr(0, bytes.size() / 2));
-  expectError([&] { readVdb(dir.file("cut.vdb")); }, {"cut.vdb"});
+  expectError([&] { readVdb(dir.file("cut.vdb")); }, {"cut.vdb", "truncated"});
+  // Cut inside the grid's header: the tree's stored offsets lie beyond the end, and the file is rejected
+  // before OpenVDB reads the tree (a truncated file once made it take 4.2 GB for 9.7 KB,
+  // tests/fuzz/regressions/vdb/openvdb-4gb-from-10kb.vdb).
+  rusage before{}, after{};
+  getrusage(RUSAGE_SELF, &before);
+  test::writeAll(dir.file("head.vdb"), bytes.substr(0, 9694));
+  expectError([&] { readVdb(dir.file("head.vdb")); }, {"head.vdb", "is stored up to byte", "truncated"});
+  expectError([&] { readVdb(test::sourceFile("tests/fuzz/regressions/vdb/openvdb-4gb-from-10kb.vdb")); },
+              {"is stored up to byte 76555", "the file has 9694 bytes"});
+  getrusage(RUSAGE_SELF, &after);
+  EXPECT_LT(after.ru_maxrss - before.ru_maxrss, 256 * 1024);  // kilobytes
   o.maxBytes = DenseGrid::defaultMaxBytes();
   o.brickCells = 0;
   expectError([&] { readVdb(sphere, o); }, {"brick size"});

@@ -62,8 +62,11 @@ class GridSelector : public openvdb::io::Archive {
   openvdb::io::Archive::Ptr copy() const override { return std::make_shared<GridSelector>(*this); }
 
   /// `wanted` empty: the first float or double grid. Fills `infos` with the grids seen (all of them unless
-  /// the wanted one was found first). Returns nullptr when no grid matches.
-  openvdb::GridBase::Ptr read(std::istream& is, const std::string& wanted, std::vector<VdbGridInfo>& infos) {
+  /// the wanted one was found first). Returns nullptr when no grid matches. `size` is the stream's length in
+  /// bytes: a grid whose stored offsets lie beyond it is rejected before OpenVDB reads its tree, which in a
+  /// truncated file reads past the end and can allocate gigabytes for a few kilobytes of input.
+  openvdb::GridBase::Ptr read(std::istream& is, std::int64_t size, const std::string& wanted,
+                              std::vector<VdbGridInfo>& infos) {
     readHeader(is);
     openvdb::io::StreamMetadata::Ptr streamMetadata(new openvdb::io::StreamMetadata);
     openvdb::io::setStreamMetadataPtr(is, streamMetadata, /*transfer=*/false);
@@ -81,6 +84,14 @@ class GridSelector : public openvdb::io::Archive {
       infos.push_back({gd.gridName(), valueType, "unknown"});
       const bool scalar = valueType == "float" || valueType == "double";
       const bool match = wanted.empty() ? scalar : gd.gridName() == wanted;
+      const bool blockInside =  // an instance shares another grid's tree and stores no block of its own
+          gd.isInstance() || (gd.getGridPos() <= gd.getBlockPos() && gd.getBlockPos() <= gd.getEndPos());
+      if (inputHasGridOffsets() &&
+          !(blockInside && gd.getGridPos() <= gd.getEndPos() && gd.getEndPos() <= size)) {
+        throw Error("grid '" + gd.gridName() + "' is stored up to byte " + std::to_string(gd.getEndPos()) +
+                    " (offsets " + std::to_string(gd.getGridPos()) + ", " + std::to_string(gd.getBlockPos()) +
+                    "), but the file has " + std::to_string(size) + " bytes: it is truncated or corrupt");
+      }
       if (match && gd.isInstance()) return readEverything(is, gd, infos);
       if (match || !inputHasGridOffsets()) {
         openvdb::io::Archive::readGrid(grid, gd, is);
@@ -300,7 +311,7 @@ std::vector<VdbGridInfo> listVdbGrids(const std::string& path) {
 }
 
 SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
-  fileSizeOf(path);
+  const std::uint64_t size = fileSizeOf(path);
   initializeOpenVdb();
   // Read through a stream with exceptions enabled: OpenVDB does not notice a file that ends early (its tree
   // would silently miss values), the stream does.
@@ -312,7 +323,9 @@ SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
     if (!in) throw Error(path + ": cannot open");
     in.exceptions(std::ios::badbit | std::ios::failbit);
     GridSelector selector;
-    base = selector.read(in, options.gridName, infos);
+    base = selector.read(in, static_cast<std::int64_t>(size), options.gridName, infos);
+  } catch (const Error& e) {
+    throw Error(path + ": " + e.what());
   } catch (const openvdb::Exception& e) {
     throw Error(path + ": cannot read VDB file: " + e.what());
   } catch (const std::ios_base::failure&) {

@@ -21,6 +21,11 @@ inline std::string sharedData(const std::string& name) {
   return std::string(CIP_SHARED_DATA) + "/" + name;
 }
 
+/// A file of the source tree, by its path from the project root.
+inline std::string sourceFile(const std::string& relative) {
+  return std::string(CIP_SOURCE_DIR) + "/" + relative;
+}
+
 /// A fresh directory under the test temp dir, removed when the object goes away.
 class ScratchDir {
  public:
