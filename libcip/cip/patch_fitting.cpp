@@ -571,30 +571,20 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
   return out;
 }
 
-}  // namespace
+/// Grid faces with crossings, each with its (one or two) cells, and per cell the index of each of its faces
+/// in that table (-1: not a bounding plane).
+struct FaceTable {
+  std::vector<FaceEntry> faces;
+  std::vector<std::array<std::int32_t, 6>> cellFaces;
+};
 
-FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
-                             const std::function<CellReference(std::size_t)>& reference) {
-  FittingStats stats;
-  const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
-  if (loops.size() != numCells) throw Error("fitModelPatches: one CellLoops per cell expected");
-  if (numCells == 0) return stats;
-  // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
-  std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
-  for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
-  for (std::size_t c = 0; c < numCells; ++c) {
-    const ModelCell& cell = model.cells[c];
-    for (int k = 0; k < cell.numCorners(); ++k) {
-      std::uint32_t v = model.corners[cell.firstCorner + k];
-      int axis = cube::edgeAxis(loops[c].edges[k]);
-      edgeDirection[v] = Vec3::Unit(axis) * (baseNormal[v][axis] >= 0 ? 1.0 : -1.0);
-    }
-  }
-  // Grid faces with crossings, each with its (one or two) cells; the first cell (lowest index) computes it.
-  // Every cell face f = 2 axis + side lists its grid faces by key; per axis, the cells' far faces (side 1)
-  // and near faces (side 0) merge into that axis's grid faces (a shared face meets its lower cell in the
-  // first list and its upper one in the second), and the axes merge into one table in key order. Cells come
-  // in raster order, so the lists are sorted already; they are sorted here only if not.
+/// The first cell of a face (lowest index) computes it. Every cell face f = 2 axis + side lists its grid
+/// faces by key; per axis, the cells' far faces (side 1) and near faces (side 0) merge into that axis's grid
+/// faces (a shared face meets its lower cell in the first list and its upper one in the second), and the axes
+/// merge into one table in key order. Cells come in raster order, so the lists are sorted already; they are
+/// sorted here only if not.
+FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops) {
+  const std::size_t numCells = model.cells.size();
   const auto& dims = model.geometry.dims;
   std::array<std::vector<FaceEntry>, 6> sides;
   {
@@ -648,19 +638,46 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     }
   }
   for (auto& list : sides) std::vector<FaceEntry>().swap(list);
-  std::vector<FaceEntry> faces, firstTwo;
+  FaceTable table;
+  std::vector<FaceEntry>& faces = table.faces;
+  std::vector<FaceEntry> firstTwo;
   firstTwo.reserve(axisFaces[0].size() + axisFaces[1].size());
   faces.reserve(firstTwo.capacity() + axisFaces[2].size());
   std::merge(axisFaces[0].begin(), axisFaces[0].end(), axisFaces[1].begin(), axisFaces[1].end(),
              std::back_inserter(firstTwo), byKey);
   std::merge(firstTwo.begin(), firstTwo.end(), axisFaces[2].begin(), axisFaces[2].end(),
              std::back_inserter(faces), byKey);
-  // Faces of each cell (index into `faces`), for dirtiness propagation.
-  std::vector<std::array<std::int32_t, 6>> cellFaces(numCells);
+  auto& cellFaces = table.cellFaces;
+  cellFaces.resize(numCells);
   for (auto& cf : cellFaces) cf.fill(-1);
   for (std::size_t i = 0; i < faces.size(); ++i)
     for (int s = 0; s < faces[i].count; ++s)
       cellFaces[faces[i].cell[s]][faces[i].face[s]] = static_cast<std::int32_t>(i);
+  return table;
+}
+
+}  // namespace
+
+FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
+                             const std::function<CellReference(std::size_t)>& reference) {
+  FittingStats stats;
+  const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
+  if (loops.size() != numCells) throw Error("fitModelPatches: one CellLoops per cell expected");
+  if (numCells == 0) return stats;
+  // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
+  std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
+  for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
+  for (std::size_t c = 0; c < numCells; ++c) {
+    const ModelCell& cell = model.cells[c];
+    for (int k = 0; k < cell.numCorners(); ++k) {
+      std::uint32_t v = model.corners[cell.firstCorner + k];
+      int axis = cube::edgeAxis(loops[c].edges[k]);
+      edgeDirection[v] = Vec3::Unit(axis) * (baseNormal[v][axis] >= 0 ? 1.0 : -1.0);
+    }
+  }
+  FaceTable table = buildFaceTable(model, loops);
+  const std::vector<FaceEntry>& faces = table.faces;
+  const std::vector<std::array<std::int32_t, 6>>& cellFaces = table.cellFaces;
 
   std::vector<std::uint8_t> level(numVertices, 0), bump(numVertices, 0);
   std::vector<std::uint8_t> faceDirty(faces.size(), 1), cellDirty(numCells, 1);
