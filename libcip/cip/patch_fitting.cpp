@@ -61,9 +61,6 @@ struct LatticeWeights {
   }
 };
 
-/// Reference values at the cell lattice (latticeCoord per axis; lattice point (a, b, d) over x, y, z at index
-/// a stride[0] + b stride[1] + d stride[2]). The tricubic interpolant is contracted one axis at a time (the
-/// weights are the same on every axis).
 /// World coordinates of the n lattice coordinates along each axis of an analytic reference's cell (as
 /// CellReference::value maps cell-local points).
 template <int n>
@@ -86,6 +83,9 @@ void analyticLattice(const CellReference& ref, const double* const coordinate[3]
       for (int a = 0; a < count[0]; ++a) out[a * stride[0] + b * stride[1] + d * stride[2]] -= ref.isovalue;
 }
 
+/// Reference values at the cell lattice (latticeCoord per axis; lattice point (a, b, d) over x, y, z at index
+/// a stride[0] + b stride[1] + d stride[2]). The tricubic interpolant is contracted one axis at a time (the
+/// weights are the same on every axis); an analytic reference is evaluated through valuesOnLattice.
 template <int n>
 void referenceCellLattice(const CellReference& ref, const std::array<int, 3>& stride, double* out) {
   if (ref.field) {
