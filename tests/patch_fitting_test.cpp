@@ -90,8 +90,7 @@ TEST(FittedPatches, FallbackRoundThatSpreadsFailuresIsUndone) {
   EXPECT_EQ(stats.blendedVertices, 0u);
   EXPECT_GT(stats.unresolvedCells.size(), 0u);
   EXPECT_EQ(countSpuriousCells(m, *field, 8, 0.5), 0);
-  // The undone round restored the coefficients and normals: the model equals one built without fallback,
-  // i.e. its normals are the exact gradients at the isovertices.
+  // The undone round restored the normals: every one is the exact gradient at its isovertex.
   for (const IsoVertex& v : m.vertices) {
     const Vec3 exact = field->gradient(g.geometry.indexToWorld(v.position)).cwiseProduct(g.geometry.spacing);
     EXPECT_GT(v.normal.dot(exact.normalized()), 0.999);
