@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <random>
 #include <vector>
 
@@ -123,4 +125,40 @@ TEST(SignConstraints, ZeroBasisWithTheWrongSignIsInfeasible) {
       3.0, SignSamples{r.data(), a.data(), b.data(), 1}, [](int) { return true; }, [](int) { return false; });
   EXPECT_FALSE(out.feasible);
   EXPECT_EQ(out.value, 3.0);
+}
+
+// For conflicting samples, fewestViolations finds a coefficient that no other contradicts less (checked
+// against every range between breakpoints), the preferred value when that is one of the best, and a
+// coefficient that meets every sample when there is one.
+TEST(SignConstraints, FewestViolationsIsTheMinimumOverAllRanges) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> unit(0, 1);
+  int withConflicts = 0;
+  for (int trial = 0; trial < 2000; ++trial) {
+    RandomSamples s = randomSamples(rng, 1 + trial % 60, 0.2);
+    for (std::size_t i = 0; i < s.r.size(); ++i)
+      if (unit(rng) < 0.1) s.a[i] = -s.a[i];  // more conflicts than randomSamples makes
+    std::vector<std::uint8_t> counts(s.r.size());
+    for (std::size_t i = 0; i < s.r.size(); ++i) counts[i] = s.far[i];
+    const SignSamples view = s.view();
+    // Every range of w between consecutive breakpoints, probed at its midpoint and beyond the ends.
+    std::vector<double> breaks;
+    for (std::size_t i = 0; i < s.r.size(); ++i)
+      if (counts[i] && s.b[i] > 1e-300) breaks.push_back(-s.a[i] / s.b[i]);
+    std::sort(breaks.begin(), breaks.end());
+    int best = signViolations(view, counts, breaks.empty() ? 0.0 : breaks.front() - 1);
+    if (!breaks.empty()) best = std::min(best, signViolations(view, counts, breaks.back() + 1));
+    for (std::size_t k = 0; k + 1 < breaks.size(); ++k)
+      if (breaks[k] < breaks[k + 1])
+        best = std::min(best, signViolations(view, counts, 0.5 * (breaks[k] + breaks[k + 1])));
+    withConflicts += best > 0;
+    const double w = fewestViolations(view, counts, 0.0);
+    ASSERT_EQ(signViolations(view, counts, w), best) << "trial " << trial << " w " << w;
+    // 0 is one of the best values: it is the answer (the margin is relative, so no finite end but 0 itself
+    // keeps 0 out of its range).
+    if (signViolations(view, counts, 0.0) == best && !std::binary_search(breaks.begin(), breaks.end(), 0.0)) {
+      EXPECT_EQ(w, 0.0) << "trial " << trial;
+    }
+  }
+  EXPECT_GT(withConflicts, 500);  // the test sees infeasible sets, not only feasible ones
 }

@@ -124,4 +124,15 @@ SignedCoefficient solveSignConstraints(double w, const SignSamples& s, Far&& far
   return out;
 }
 
+/// Number of counting samples to which coefficient w gives the wrong sign (a + w b against r; zero counts as
+/// wrong). `counts[i]` says whether sample i counts.
+int signViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double w);
+
+/// For samples without a common coefficient: a coefficient that the fewest counting samples contradict, the
+/// one nearest to `preferred` among such, kept CoefficientInterval::kEps (relative) inside the finite ends of
+/// its range of w (the range's midpoint when it is narrower than that). `counts[i]` says whether sample i
+/// counts. Every counting sample with b > 0 is wrong on one side of its breakpoint -a / b, so the count is a
+/// step function of w and the ranges between consecutive breakpoints are all there is to compare.
+double fewestViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double preferred);
+
 }  // namespace cip
