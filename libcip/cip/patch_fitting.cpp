@@ -497,7 +497,10 @@ struct CellResult {
   bool ok = true;
 };
 
-CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
+/// The central coefficient of a cell. Where no value meets every counting sample, the result is not ok and
+/// the coefficient is 0, or with `leastContradicted` the value the fewest counting samples contradict (see
+/// below; only for the cells still unresolved after the fallback rounds, as it examines more samples).
+CellResult fitCell(const CornerPatch& patch, const CellReference& ref, bool leastContradicted = false) {
   constexpr int n = kCellLattice, nf = kOpenFaceLattice;
   constexpr int kLattice = n * n * n;
   // Samples: the inset cell lattice, then the lattices of the cell's faces that are not bounding planes (no
@@ -567,13 +570,33 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref) {
       solveSignConstraints(fitCount > 0 ? -num / den : 0.0, samples, far, confirmFar);
   CellResult out;
   out.ok = sc.feasible;
-  out.central = sc.value;
-  if (!sc.feasible) {
+  out.central = sc.feasible ? sc.value : 0.0;
+  if (!sc.feasible && leastContradicted) {
     // No coefficient meets every counting sample: the one that the fewest contradict, nearest to 0 (better
     // than the fit there: Marschner-Lobb at N = 32 exact has 0 wrong-sign cells with 0, 96 with the fit).
-    std::vector<std::uint8_t> counts(static_cast<std::size_t>(samples.count));
-    for (int i = 0; i < samples.count; ++i) counts[static_cast<std::size_t>(i)] = far(i) || confirmFar(i);
-    out.central = fewestViolations(samples, counts, 0.0);
+    // Samples near the surface by the first-order estimate are checked by Newton steps only where the chosen
+    // value gives them the wrong sign, as in solveSignConstraints; a sample found to count is added and the
+    // choice repeated. The result is as good as with every sample checked: samples never checked have the
+    // right sign at it, and no value contradicts fewer of the samples known to count.
+    std::vector<std::uint8_t> counts(static_cast<std::size_t>(samples.count)), checked;
+    for (int i = 0; i < samples.count; ++i) counts[static_cast<std::size_t>(i)] = far(i);
+    checked = counts;
+    for (;;) {
+      out.central = fewestViolations(samples, counts, 0.0);
+      bool added = false;
+      for (int i = 0; i < samples.count; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        if (checked[k]) continue;
+        const double v = samples.a[i] + out.central * samples.b[i];
+        if (r[k] > 0 ? v > 0 : v < 0) continue;
+        checked[k] = 1;
+        if (confirmFar(i)) {
+          counts[k] = 1;
+          added = true;
+        }
+      }
+      if (!added) break;
+    }
   }
   return out;
 }
@@ -877,6 +900,16 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
       }
     std::sort(dirtyCells.begin(), dirtyCells.end());
   }
+  // Cells left without a sign-correct central coefficient take the one the fewest counting samples
+  // contradict (nearest to 0) instead of 0.
+  std::vector<std::uint32_t> infeasible;
+  for (std::size_t c = 0; c < numCells; ++c)
+    if (!cellOk[c]) infeasible.push_back(static_cast<std::uint32_t>(c));
+  tbb::parallel_for(std::size_t(0), infeasible.size(), [&](std::size_t j) {
+    const std::size_t c = infeasible[j];
+    model.cells[c].central = 0;
+    model.cells[c].central = fitCell(model.patch(c, loops[c]), reference(c), true).central;
+  });
   for (std::size_t v = 0; v < numVertices; ++v) {
     stats.blendedVertices += level[v] > 0;
     ++stats.levelCount[level[v]];

@@ -21,8 +21,9 @@
 /// isovertices move one step from the gradient towards the edge direction (blend levels, shared per
 /// isovertex); the affected faces and cells are recomputed. A round that does not reduce the cells left
 /// unresolved is undone and ends the rounds (blending cannot fix a cell whose field has structure inside that
-/// its loops do not follow, and there it spreads failures). Rounds are deterministic (decisions of a round
-/// depend only on the previous round's state), so the result does not depend on the number of threads.
+/// its loops do not follow, and there it spreads failures). A cell left without a sign-correct central
+/// coefficient takes the one the fewest counting samples contradict. Rounds are deterministic (decisions of a
+/// round depend only on the previous round's state), so the result does not depend on the number of threads.
 /// docs/method.md has the details and the measurements.
 #pragma once
 #include <array>
