@@ -498,9 +498,11 @@ struct CellResult {
 };
 
 /// The central coefficient of a cell. Where no value meets every counting sample, the result is not ok and
-/// the coefficient is 0, or with `leastContradicted` the value the fewest counting samples contradict (see
-/// below; only for the cells still unresolved after the fallback rounds, as it examines more samples).
-CellResult fitCell(const CornerPatch& patch, const CellReference& ref, bool leastContradicted = false) {
+/// the coefficient is 0, or with `fallBackToLeastContradicted` the value the fewest counting samples
+/// contradict (see below; only for the cells still unresolved after the fallback rounds, as it examines more
+/// samples).
+CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
+                   bool fallBackToLeastContradicted = false) {
   constexpr int n = kCellLattice, nf = kOpenFaceLattice;
   constexpr int kLattice = n * n * n;
   // Samples: the inset cell lattice, then the lattices of the cell's faces that are not bounding planes (no
@@ -571,33 +573,10 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref, bool leas
   CellResult out;
   out.ok = sc.feasible;
   out.central = sc.feasible ? sc.value : 0.0;
-  if (!sc.feasible && leastContradicted) {
-    // No coefficient meets every counting sample: the one that the fewest contradict, nearest to 0 (better
-    // than the fit there: Marschner-Lobb at N = 32 exact has 0 wrong-sign cells with 0, 96 with the fit).
-    // Samples near the surface by the first-order estimate are checked by Newton steps only where the chosen
-    // value gives them the wrong sign, as in solveSignConstraints; a sample found to count is added and the
-    // choice repeated. The result is as good as with every sample checked: samples never checked have the
-    // right sign at it, and no value contradicts fewer of the samples known to count.
-    std::vector<std::uint8_t> counts(static_cast<std::size_t>(samples.count)), checked;
-    for (int i = 0; i < samples.count; ++i) counts[static_cast<std::size_t>(i)] = far(i);
-    checked = counts;
-    for (;;) {
-      out.central = fewestViolations(samples, counts, 0.0);
-      bool added = false;
-      for (int i = 0; i < samples.count; ++i) {
-        const auto k = static_cast<std::size_t>(i);
-        if (checked[k]) continue;
-        const double v = samples.a[i] + out.central * samples.b[i];
-        if (r[k] > 0 ? v > 0 : v < 0) continue;
-        checked[k] = 1;
-        if (confirmFar(i)) {
-          counts[k] = 1;
-          added = true;
-        }
-      }
-      if (!added) break;
-    }
-  }
+  // No coefficient meets every counting sample: the one that the fewest contradict, nearest to 0 (better than
+  // the fit there: Marschner-Lobb at N = 32 exact has 0 wrong-sign cells with 0, 96 with the fit).
+  if (!sc.feasible && fallBackToLeastContradicted)
+    out.central = leastContradicted(0.0, samples, far, confirmFar);
   return out;
 }
 

@@ -44,9 +44,7 @@ CIP_VECTOR_CLONES int slackSweep(const SignSamples& s, double w, double* slack) 
 int signViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double w) {
   int violations = 0;
   for (int i = 0; i < s.count; ++i) {
-    if (!counts[static_cast<std::size_t>(i)]) continue;
-    const double v = s.a[i] + w * s.b[i];
-    violations += !(s.r[i] > 0 ? v > 0 : v < 0);
+    violations += counts[static_cast<std::size_t>(i)] && contradicts(s, i, w);
   }
   return violations;
 }

@@ -124,8 +124,14 @@ SignedCoefficient solveSignConstraints(double w, const SignSamples& s, Far&& far
   return out;
 }
 
-/// Number of counting samples to which coefficient w gives the wrong sign (a + w b against r; zero counts as
-/// wrong). `counts[i]` says whether sample i counts.
+/// Whether coefficient w gives sample i the wrong sign (a + w b against r; zero counts as wrong).
+inline bool contradicts(const SignSamples& s, int i, double w) {
+  const double v = s.a[i] + w * s.b[i];
+  return !(s.r[i] > 0 ? v > 0 : v < 0);
+}
+
+/// Number of counting samples to which coefficient w gives the wrong sign (contradicts). `counts[i]` says
+/// whether sample i counts.
 int signViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double w);
 
 /// For samples without a common coefficient: a coefficient that the fewest counting samples contradict, the
@@ -134,5 +140,31 @@ int signViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts
 /// counts. Every counting sample with b > 0 is wrong on one side of its breakpoint -a / b, so the count is a
 /// step function of w and the ranges between consecutive breakpoints are all there is to compare.
 double fewestViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double preferred);
+
+/// fewestViolations for samples classified as solveSignConstraints does: `far(i)` is asked for every sample;
+/// `confirmFar(i)` only for a sample that is not far but that the chosen value contradicts, and if it is
+/// true the sample counts and the choice is repeated. The result contradicts no more counting samples than
+/// with every sample classified: the samples never confirmed have the right sign at it, and no value
+/// contradicts fewer of those known to count.
+template <class Far, class ConfirmFar>
+double leastContradicted(double preferred, const SignSamples& s, Far&& far, ConfirmFar&& confirmFar) {
+  std::vector<std::uint8_t> counts(static_cast<std::size_t>(s.count)), checked;
+  for (int i = 0; i < s.count; ++i) counts[static_cast<std::size_t>(i)] = far(i);
+  checked = counts;
+  for (;;) {
+    const double w = fewestViolations(s, counts, preferred);
+    bool added = false;
+    for (int i = 0; i < s.count; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      if (checked[k] || !contradicts(s, i, w)) continue;
+      checked[k] = 1;
+      if (confirmFar(i)) {
+        counts[k] = 1;
+        added = true;
+      }
+    }
+    if (!added) return w;
+  }
+}
 
 }  // namespace cip
