@@ -485,7 +485,9 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   const SignedCoefficient sc = solveSignConstraints(
       -num / den, samples,
       [&](int i) { return farFromSurface(ref, r[i], ref.gradient(faceLatticePoint<n>(f, i % n, i / n))); },
-      [](int) { return false; });
+      [&](int i) {
+        return !referenceSurfaceWithin(ref, faceLatticePoint<n>(f, i % n, i / n), r[i], kVerifiedVoxels);
+      });
   FaceResult out;
   out.ok = sc.feasible;
   out.coefficient = sc.value;

@@ -15,16 +15,16 @@
 /// the interval of w for which the face restriction has the reference's sign at every face sample lying more
 /// than a margin from the reference surface. In each cell the central coefficient is fitted to interior
 /// reference surface points and clamped into the interval that keeps the reference's sign at interior lattice
-/// points away from the surface and on the cell's faces that are not bounding planes. Samples the first-order
-/// distance estimate calls near the surface are checked by Newton steps on the reference where the patch
-/// gives them the wrong sign. When an interval is empty, the face or cell fails, and the normals of all its
-/// isovertices move one step from the gradient towards the edge direction (blend levels, shared per
-/// isovertex); the affected faces and cells are recomputed. A round that does not reduce the cells left
-/// unresolved is undone and ends the rounds (blending cannot fix a cell whose field has structure inside that
-/// its loops do not follow, and there it spreads failures). A cell left without a sign-correct central
-/// coefficient takes the one the fewest counting samples contradict. Rounds are deterministic (decisions of a
-/// round depend only on the previous round's state), so the result does not depend on the number of threads.
-/// docs/method.md has the details and the measurements.
+/// points away from the surface and on the cell's faces that are not bounding planes. Samples (of faces and
+/// cells) the first-order distance estimate calls near the surface are checked by Newton steps on the
+/// reference where the patch gives them the wrong sign. When an interval is empty, the face or cell fails,
+/// and the normals of all its isovertices move one step from the gradient towards the edge direction (blend
+/// levels, shared per isovertex); the affected faces and cells are recomputed. A round that does not reduce
+/// the cells left unresolved is undone and ends the rounds (blending cannot fix a cell whose field has
+/// structure inside that its loops do not follow, and there it spreads failures). A cell left without a
+/// sign-correct central coefficient takes the one the fewest counting samples contradict. Rounds are
+/// deterministic (decisions of a round depend only on the previous round's state), so the result does not
+/// depend on the number of threads. docs/method.md has the details and the measurements.
 #pragma once
 #include <array>
 #include <cstdint>

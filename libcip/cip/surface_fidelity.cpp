@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "cip/bisection.h"
+#include "cip/cube_topology.h"
 
 namespace cip {
 
@@ -218,9 +219,24 @@ FidelityMeasures measureFidelity(const std::vector<SurfaceSample>& samples, cons
   return m;
 }
 
+namespace {
+
+/// Whether the patch has the wrong sign at cell-local point `local` more than `radius` (world) from the true
+/// surface.
+bool wrongSignAt(const CornerPatch& patch, const Model& model, const ScalarField& truth, const Vec3& origin,
+                 const Vec3& local, double radius) {
+  const Vec3 w = model.geometry.indexToWorld(origin + local);
+  const double f = truth.value(w) - model.isovalue;
+  const double v = patch.value(local);
+  if ((f > 0) == (v > 0) || v == 0) return false;
+  // Disagreement: count it only far from the true surface.
+  return !surfaceWithin(truth, model.isovalue, w, f, radius);
+}
+
+}  // namespace
+
 std::int64_t countSpuriousCells(const Model& model, const ScalarField& truth, int lattice, double margin) {
-  const double voxel = model.geometry.spacing.minCoeff();
-  const double iso = model.isovalue;
+  const double radius = margin * model.geometry.spacing.minCoeff();
   std::vector<std::uint8_t> bad(model.cells.size(), 0);
   tbb::parallel_for(std::size_t(0), model.cells.size(), [&](std::size_t c) {
     CornerPatch p = model.patch(c);
@@ -229,13 +245,47 @@ std::int64_t countSpuriousCells(const Model& model, const ScalarField& truth, in
       for (int b = 0; b < lattice && !bad[c]; ++b)
         for (int d = 0; d < lattice && !bad[c]; ++d) {
           Vec3 local((a + 0.5) / lattice, (b + 0.5) / lattice, (d + 0.5) / lattice);
-          Vec3 w = model.geometry.indexToWorld(origin + local);
-          double f = truth.value(w) - iso;
-          double v = p.value(local);
-          if ((f > 0) == (v > 0) || v == 0) continue;
-          // Disagreement: count it only far from the true surface.
-          if (!surfaceWithin(truth, iso, w, f, margin * voxel)) bad[c] = 1;
+          if (wrongSignAt(p, model, truth, origin, local, radius)) bad[c] = 1;
         }
+  });
+  std::int64_t n = 0;
+  for (auto b : bad) n += b;
+  return n;
+}
+
+std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth, int lattice, double margin,
+                                 const std::vector<std::uint32_t>& skipCells) {
+  std::vector<double> coordinates(static_cast<std::size_t>(std::max(lattice, 0)));
+  for (int a = 0; a < lattice; ++a) coordinates[static_cast<std::size_t>(a)] = (a + 0.5) / lattice;
+  return countWrongSignFaces(model, truth, coordinates, margin, skipCells);
+}
+
+std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth,
+                                 const std::vector<double>& coordinates, double margin,
+                                 const std::vector<std::uint32_t>& skipCells) {
+  const double radius = margin * model.geometry.spacing.minCoeff();
+  std::vector<std::uint8_t> skip(model.cells.size(), 0);
+  for (std::uint32_t c : skipCells)
+    if (c < skip.size()) skip[c] = 1;
+  std::vector<std::uint8_t> bad(6 * model.cells.size(), 0);
+  tbb::parallel_for(std::size_t(0), model.cells.size(), [&](std::size_t c) {
+    if (skip[c]) return;
+    CornerPatch p = model.patch(c);
+    Vec3 origin = model.cellOrigin(c);
+    for (int f = 0; f < 6; ++f) {
+      if (!((p.faceMask >> f) & 1)) continue;
+      const int axis = cube::faceAxis(f);
+      std::uint8_t& faceBad = bad[6 * c + static_cast<std::size_t>(f)];
+      for (double u : coordinates)
+        for (double v : coordinates) {
+          if (faceBad) break;
+          Vec3 local;
+          local[axis] = cube::faceSide(f);
+          local[(axis + 1) % 3] = u;
+          local[(axis + 2) % 3] = v;
+          if (wrongSignAt(p, model, truth, origin, local, radius)) faceBad = 1;
+        }
+    }
   });
   std::int64_t n = 0;
   for (auto b : bad) n += b;

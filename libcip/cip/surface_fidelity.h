@@ -60,6 +60,17 @@ FidelityMeasures measureFidelity(const std::vector<SurfaceSample>& samples, cons
 std::int64_t countSpuriousCells(const Model& model, const ScalarField& truth, int lattice = 8,
                                 double marginVoxels = 0.5);
 
+/// Number of bounding faces of cells (a face between two cells counts for each) on which the patch has the
+/// wrong sign at some point of a lattice x lattice grid on the face more than `marginVoxels` from the true
+/// surface, with the test of countSpuriousCells: the joins between cells, where a wrong sign is a sheet
+/// spanning two cells. Cells listed in `skipCells` (model indices) are left out.
+std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth, int lattice = 16,
+                                 double marginVoxels = 0.5, const std::vector<std::uint32_t>& skipCells = {});
+/// The same on the lattice with the given face coordinates (in [0, 1]) along both axes of every face.
+std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth,
+                                 const std::vector<double>& coordinates, double marginVoxels = 0.5,
+                                 const std::vector<std::uint32_t>& skipCells = {});
+
 /// Newton steps along the gradient from p (world) onto the surface truth = iso (at most 30; stops when a step
 /// is below 1e-13 or the gradient vanishes). The result is a surface point when it converges, not always the
 /// nearest one.
