@@ -24,8 +24,11 @@ namespace cip {
 struct CoefficientInterval {
   static constexpr double kInf = std::numeric_limits<double>::infinity();
   /// Relative margin of clamp: at the end t = -a / b of a constraint, a + w b >= kEps |a| needs
-  /// w >= t + kEps |t|, so the zero set stays away from the sample that defines an end.
-  static constexpr double kEps = 0.05;
+  /// w >= t + kEps |t|, so the zero set stays away from the sample that defines an end. That sample lies away
+  /// from the reference surface; with a thin margin (0.05) the patch's zero set could pass just beside it
+  /// and, between samples, more than half a voxel from the surface (headsq at 1150: 2 wrong-sign cells on the
+  /// 8^3 lattice with 0.05, 0 with 0.4; docs/method.md has the sweep).
+  static constexpr double kEps = 0.4;
   double lo = -kInf, hi = kInf;
   bool empty = false;
 
