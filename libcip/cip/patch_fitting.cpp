@@ -4,6 +4,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <iterator>
 #include <limits>
@@ -707,15 +708,39 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   std::vector<std::uint32_t> vertexCellStart, vertexCells;  // cells of each isovertex (built for round 1)
   std::vector<CellReference> blockReference(std::min(numCells, kBlockCells));
   // Cells without a sign-correct central coefficient or with a face without a sign-correct side coefficient.
-  auto countUnresolved = [&] {
-    std::size_t count = 0;
+  auto unresolvedCells = [&] {
+    std::vector<std::uint32_t> out;
     for (std::size_t c = 0; c < numCells; ++c) {
       bool bad = !cellOk[c];
       for (int f = 0; f < 6 && !bad; ++f)
         bad = cellFaces[c][f] >= 0 && !faceOk[static_cast<std::size_t>(cellFaces[c][f])];
-      count += bad;
+      if (bad) out.push_back(static_cast<std::uint32_t>(c));
     }
-    return count;
+    return out;
+  };
+  // Whether one of `cells` gets sign-correct side coefficients on all its faces and a sign-correct central
+  // coefficient when fitted alone with the current normals, exactly as a round would fit it (each face by its
+  // first cell). The model is not changed.
+  auto someCellResolves = [&](const std::vector<std::uint32_t>& cells) {
+    std::atomic<bool> found{false};
+    tbb::parallel_for(std::size_t(0), cells.size(), [&](std::size_t j) {
+      if (found.load(std::memory_order_relaxed)) return;
+      const std::size_t c = cells[j];
+      CornerPatch patch = model.patch(c, loops[c]);
+      for (int f = 0; f < 6; ++f) {
+        const std::int32_t i = cellFaces[c][f];
+        if (i < 0) continue;
+        const FaceEntry& face = faces[static_cast<std::size_t>(i)];
+        const std::size_t first = face.cell[0];
+        const FaceResult fr = fitFace(first == c ? patch : model.patch(first, loops[first]),
+                                      model.cells[first].pairing03, face.face[0], reference(first));
+        if (!fr.ok) return;
+        patch.faceCoefficient[static_cast<std::size_t>(f)] = fr.coefficient;
+      }
+      patch.central = 0;
+      if (fitCell(patch, reference(c)).ok) found.store(true, std::memory_order_relaxed);
+    });
+    return found.load();
   };
   std::size_t bestUnresolved = 0;
   // What a round overwrites, to undo it: per dirty cell its coefficients and result, per refitted face its
@@ -796,7 +821,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     // normals cannot make a cell follow sign structure its loops do not have (a field with detail inside
     // cells), and there it only spreads failures to the neighbours (Marschner-Lobb at N = 32, exact: 160
     // unresolved cells after the first round, 280 after ten).
-    const std::size_t unresolved = countUnresolved();
+    const std::size_t unresolved = unresolvedCells().size();
     if (round > 0 && unresolved >= bestUnresolved) {
       for (std::size_t j = 0; j < dirtyCells.size(); ++j) {
         ModelCell& cell = model.cells[dirtyCells[j]];
@@ -841,6 +866,19 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     for (std::uint32_t v : changedVertices) {
       ++level[v];
       bump[v] = 0;
+      setNormal(v);
+    }
+    // The next round can lower the count of unresolved cells only if one of them resolves, and what a round
+    // gives a cell depends on its own isovertices alone. If none resolves when fitted alone, the round would
+    // be undone: end here with the same result, without refitting the cells around them.
+    if (!someCellResolves(unresolvedCells())) {
+      for (std::uint32_t v : changedVertices) {
+        --level[v];
+        setNormal(v);
+      }
+      stats.rounds = round + 2;
+      stats.lastRoundUndone = true;
+      break;
     }
     if (vertexCellStart.empty()) {  // cells of each isovertex, as a compressed table
       vertexCellStart.assign(numVertices + 1, 0);
