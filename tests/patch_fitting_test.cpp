@@ -73,8 +73,9 @@ INSTANTIATE_TEST_SUITE_P(AnalyticFields, FittedPatches,
 
 // Marschner-Lobb at N = 32 has about 2.7 cells per ripple: about 160 cells have sign structure inside that
 // their loops cannot follow, and blending their normals only spreads the failures (more unresolved cells
-// after each round). The first fallback round is undone, so the model is the unblended one, and it has no
-// wrong-sign cell at half a voxel, while ten rounds used to leave 1.1 % of the cells wrong-sign.
+// after each round). The first fallback round is undone (none of the unresolved cells resolves when refitted
+// alone, so it ends before refitting the rest), the model is the unblended one, and it has no wrong-sign cell at
+// half a voxel, while ten rounds used to leave 1.1 % of the cells wrong-sign.
 TEST(FittedPatches, FallbackRoundThatSpreadsFailuresIsUndone) {
   auto field = makeAnalyticField("marschner-lobb");
   DenseGrid g = sampleField(*field, 32, field->name());
