@@ -216,6 +216,8 @@ TEST(FittedPatches, NoWrongSignCellsOnCtData) {
   EXPECT_EQ(wrongSignCells(crop(tooth, {30, 30, 60}, {40, 40, 40}), 120), 0);
   DenseGrid headsq = readVolumeDense(test::sharedData("headsq.nhdr"));
   EXPECT_EQ(wrongSignCells(crop(headsq, {10, 10, 30}, {40, 40, 30}), 500), 0);
+  // Bone at 1150: 2 wrong-sign cells in this block with a 5 % clamp margin and unverified face exemptions.
+  EXPECT_EQ(wrongSignCells(crop(headsq, {20, 20, 4}, {24, 32, 28}), 1150), 0);
 }
 
 // Bounding faces carry the joins between cells, where a wrong sign is a sheet spanning two cells. The side
