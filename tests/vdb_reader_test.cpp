@@ -247,6 +247,23 @@ TEST(VdbReader, Errors) {
   expectError([&] { readVdb(dir.file("head.vdb")); }, {"head.vdb", "is stored up to byte", "truncated"});
   expectError([&] { readVdb(test::sourceFile("tests/fuzz/regressions/vdb/openvdb-4gb-from-10kb.vdb")); },
               {"is stored up to byte 76555", "the file has 9694 bytes"});
+  // Strings and metadata values are a 32-bit size and that many bytes, and OpenVDB allocates the size before
+  // reading: these files (589 B to 76 KB, found by fuzzing) made it allocate 2-4 GB. Each size is now checked
+  // against the rest of the file first, in the file's metadata, in a grid descriptor and in a grid's
+  // metadata.
+  const std::string regressions = "tests/fuzz/regressions/vdb/";
+  expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-4gb-grid-type-name.vdb")); },
+              {"a grid type name at byte 79 claims 4294966032 bytes", "the file has 589"});
+  expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-4gb-file-metadata-name.vdb")); },
+              {"a metadata name at byte 65 claims", "the file has 1213"});
+  expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-4gb-instance-parent-name.vdb")); },
+              {"an instance parent name at byte 99 claims"});
+  expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-2gb-grid-metadata-name.vdb")); },
+              {"a metadata name at byte 306 claims 2130706449 bytes"});
+  expectError([&] { listVdbGrids(test::sourceFile(regressions + "openvdb-4gb-grid-type-name.vdb")); },
+              {"a grid type name at byte 79 claims"});
+  expectError([&] { listVdbGrids(test::sourceFile(regressions + "openvdb-2gb-grid-metadata-name.vdb")); },
+              {"a metadata name at byte 306 claims"});
   getrusage(RUSAGE_SELF, &after);
   EXPECT_LT(after.ru_maxrss - before.ru_maxrss, 256 * 1024);  // kilobytes
   o.maxBytes = DenseGrid::defaultMaxBytes();

@@ -39,18 +39,46 @@ std::string gridClassName(openvdb::GridClass c) {
   }
 }
 
-std::vector<VdbGridInfo> gridInfos(openvdb::io::File& file) {
-  std::vector<VdbGridInfo> out;
-  openvdb::GridPtrVecPtr grids = file.readAllGridMetadata();
-  for (const auto& g : *grids)
-    out.push_back({g->getName(), g->valueType(), gridClassName(g->getGridClass())});
-  return out;
-}
-
 std::string listing(const std::vector<VdbGridInfo>& infos) {
   std::string s;
   for (const auto& g : infos) s += (s.empty() ? "" : ", ") + ("'" + g.name + "' (" + g.valueType + ")");
   return s.empty() ? "none" : s;
+}
+
+/// OpenVDB reads strings and metadata values as a 32-bit size followed by that many bytes, and allocates the
+/// size before it reads: a 589-byte file made it allocate 4 GB. These checks walk such fields ahead of
+/// OpenVDB, reject a size larger than the rest of the file, and return to where they started.
+void skipSized(std::istream& is, std::int64_t fileSize, const char* what) {
+  std::uint32_t n = 0;
+  is.read(reinterpret_cast<char*>(&n), sizeof n);
+  const std::int64_t at = static_cast<std::int64_t>(is.tellg());
+  if (static_cast<std::int64_t>(n) > fileSize - at)
+    throw Error(std::string(what) + " at byte " + std::to_string(at) + " claims " + std::to_string(n) +
+                " bytes, but the file has " + std::to_string(fileSize) + ": it is truncated or corrupt");
+  is.seekg(static_cast<std::streamoff>(n), std::ios::cur);
+}
+
+/// Checks a metadata map (count; per entry a name, a type name and a size-prefixed value).
+void checkMetaMap(std::istream& is, std::int64_t fileSize) {
+  const std::streampos start = is.tellg();
+  std::uint32_t count = 0;
+  is.read(reinterpret_cast<char*>(&count), sizeof count);
+  for (std::uint32_t i = 0; i < count; ++i) {  // each entry takes at least 12 bytes: bounded by the file
+    skipSized(is, fileSize, "a metadata name");
+    skipSized(is, fileSize, "a metadata type name");
+    skipSized(is, fileSize, "a metadata value");
+  }
+  is.seekg(start);
+}
+
+/// Checks the strings of a grid descriptor (unique name, type name, and the instance parent's name).
+void checkGridDescriptor(std::istream& is, std::int64_t fileSize) {
+  const std::streampos start = is.tellg();
+  skipSized(is, fileSize, "a grid name");
+  skipSized(is, fileSize, "a grid type name");
+  if (openvdb::io::getFormatVersion(is) >= openvdb::OPENVDB_FILE_VERSION_GRID_INSTANCING)
+    skipSized(is, fileSize, "an instance parent name");
+  is.seekg(start);
 }
 
 /// Reads the one grid wanted from a VDB stream, skipping the others by their stored end offsets (files
@@ -67,33 +95,18 @@ class GridSelector : public openvdb::io::Archive {
   /// truncated file reads past the end and can allocate gigabytes for a few kilobytes of input.
   openvdb::GridBase::Ptr read(std::istream& is, std::int64_t size, const std::string& wanted,
                               std::vector<VdbGridInfo>& infos) {
-    readHeader(is);
-    openvdb::io::StreamMetadata::Ptr streamMetadata(new openvdb::io::StreamMetadata);
-    openvdb::io::setStreamMetadataPtr(is, streamMetadata, /*transfer=*/false);
-    openvdb::io::setVersion(is, libraryVersion(), fileVersion());
-    openvdb::io::setDataCompression(is, compression());
-    openvdb::MetaMap fileMeta;
-    fileMeta.readMeta(is);
-    const std::int32_t count = readGridCount(is);
+    const std::int32_t count = readUpToGrids(is, size);
     for (std::int32_t n = 0; n < count; ++n) {
       openvdb::io::GridDescriptor gd;
-      openvdb::GridBase::Ptr grid =
-          gd.read(is);  // an empty grid of the stored type (throws for unknown types)
+      openvdb::GridBase::Ptr grid = readDescriptor(is, size, gd);
       if (!grid) return nullptr;
       const std::string valueType = grid->valueType();
       infos.push_back({gd.gridName(), valueType, "unknown"});
       const bool scalar = valueType == "float" || valueType == "double";
       const bool match = wanted.empty() ? scalar : gd.gridName() == wanted;
-      const bool blockInside =  // an instance shares another grid's tree and stores no block of its own
-          gd.isInstance() || (gd.getGridPos() <= gd.getBlockPos() && gd.getBlockPos() <= gd.getEndPos());
-      if (inputHasGridOffsets() &&
-          !(blockInside && gd.getGridPos() <= gd.getEndPos() && gd.getEndPos() <= size)) {
-        throw Error("grid '" + gd.gridName() + "' is stored up to byte " + std::to_string(gd.getEndPos()) +
-                    " (offsets " + std::to_string(gd.getGridPos()) + ", " + std::to_string(gd.getBlockPos()) +
-                    "), but the file has " + std::to_string(size) + " bytes: it is truncated or corrupt");
-      }
       if (match && gd.isInstance()) return readEverything(is, gd, infos);
       if (match || !inputHasGridOffsets()) {
+        checkGridMetadata(is, size);
         openvdb::io::Archive::readGrid(grid, gd, is);
         infos.back().gridClass = gridClassName(grid->getGridClass());
         if (match) return grid;
@@ -104,7 +117,70 @@ class GridSelector : public openvdb::io::Archive {
     return nullptr;
   }
 
+  /// Name, value type and class of every grid, from the grids' metadata (a stream without grid offsets is
+  /// read whole).
+  std::vector<VdbGridInfo> list(std::istream& is, std::int64_t size) {
+    std::vector<VdbGridInfo> infos;
+    const std::int32_t count = readUpToGrids(is, size);
+    for (std::int32_t n = 0; n < count; ++n) {
+      openvdb::io::GridDescriptor gd;
+      openvdb::GridBase::Ptr grid = readDescriptor(is, size, gd);
+      if (!grid) break;
+      checkGridMetadata(is, size);
+      if (inputHasGridOffsets()) {
+        readGridCompression(is);
+        grid->readMeta(is);
+        gd.seekToEnd(is);
+      } else {
+        openvdb::io::Archive::readGrid(grid, gd, is);
+      }
+      infos.push_back({gd.gridName(), grid->valueType(), gridClassName(grid->getGridClass())});
+    }
+    return infos;
+  }
+
  private:
+  /// The stream's metadata (OpenVDB keeps a plain pointer to it in the stream while it is read).
+  openvdb::io::StreamMetadata::Ptr streamMetadata_;
+
+  /// Reads the header and the file's metadata; returns the number of grids.
+  std::int32_t readUpToGrids(std::istream& is, std::int64_t size) {
+    readHeader(is);
+    streamMetadata_ = std::make_shared<openvdb::io::StreamMetadata>();
+    openvdb::io::setStreamMetadataPtr(is, streamMetadata_, /*transfer=*/false);
+    openvdb::io::setVersion(is, libraryVersion(), fileVersion());
+    openvdb::io::setDataCompression(is, compression());
+    openvdb::MetaMap fileMeta;
+    checkMetaMap(is, size);
+    fileMeta.readMeta(is);
+    return readGridCount(is);
+  }
+
+  /// Reads the next grid descriptor into `gd` and returns an empty grid of its type (OpenVDB throws for
+  /// unknown types). A grid whose stored offsets lie beyond the end of the file is rejected here.
+  openvdb::GridBase::Ptr readDescriptor(std::istream& is, std::int64_t size,
+                                        openvdb::io::GridDescriptor& gd) {
+    checkGridDescriptor(is, size);
+    openvdb::GridBase::Ptr grid = gd.read(is);
+    const bool blockInside =  // an instance shares another grid's tree and stores no block of its own
+        gd.isInstance() || (gd.getGridPos() <= gd.getBlockPos() && gd.getBlockPos() <= gd.getEndPos());
+    if (inputHasGridOffsets() &&
+        !(blockInside && gd.getGridPos() <= gd.getEndPos() && gd.getEndPos() <= size)) {
+      throw Error("grid '" + gd.gridName() + "' is stored up to byte " + std::to_string(gd.getEndPos()) +
+                  " (offsets " + std::to_string(gd.getGridPos()) + ", " + std::to_string(gd.getBlockPos()) +
+                  "), but the file has " + std::to_string(size) + " bytes: it is truncated or corrupt");
+    }
+    return grid;
+  }
+
+  /// Checks a grid's metadata map, which follows its compression flags where the grid starts.
+  static void checkGridMetadata(std::istream& is, std::int64_t fileSize) {
+    const std::streampos start = is.tellg();
+    readGridCompression(is);
+    checkMetaMap(is, fileSize);
+    is.seekg(start);
+  }
+
   /// Fallback for instances: read the whole stream again from the start with OpenVDB's Stream.
   openvdb::GridBase::Ptr readEverything(std::istream& is, const openvdb::io::GridDescriptor& wanted,
                                         std::vector<VdbGridInfo>& infos) {
@@ -292,38 +368,18 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
   return volume;
 }
 
-}  // namespace
-
-std::vector<VdbGridInfo> listVdbGrids(const std::string& path) {
-  fileSizeOf(path);
+/// Runs `read(stream, size)` on the file opened as a stream that throws at its end (OpenVDB does not notice a
+/// file that ends early: its tree would silently miss values), turning every failure into an Error naming the
+/// file.
+template <class Read>
+auto readVdbStream(const std::string& path, Read&& read) {
+  const auto size = static_cast<std::int64_t>(fileSizeOf(path));
   initializeOpenVdb();
-  try {
-    openvdb::io::File file(path);
-    file.open(false);
-    auto infos = gridInfos(file);
-    file.close();
-    return infos;
-  } catch (const openvdb::Exception& e) {
-    throw Error(path + ": cannot read VDB file: " + e.what());
-  } catch (const std::exception& e) {
-    throw Error(path + ": cannot read VDB file (corrupt?): " + e.what());
-  }
-}
-
-SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
-  const std::uint64_t size = fileSizeOf(path);
-  initializeOpenVdb();
-  // Read through a stream with exceptions enabled: OpenVDB does not notice a file that ends early (its tree
-  // would silently miss values), the stream does.
-  openvdb::GridPtrVecPtr grids;
-  openvdb::GridBase::Ptr base;
-  std::vector<VdbGridInfo> infos;
   try {
     std::ifstream in(path, std::ios::binary);
-    if (!in) throw Error(path + ": cannot open");
+    if (!in) throw Error("cannot open");
     in.exceptions(std::ios::badbit | std::ios::failbit);
-    GridSelector selector;
-    base = selector.read(in, static_cast<std::int64_t>(size), options.gridName, infos);
+    return read(in, size);
   } catch (const Error& e) {
     throw Error(path + ": " + e.what());
   } catch (const openvdb::Exception& e) {
@@ -334,6 +390,20 @@ SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
     // Corrupt files can also make OpenVDB fail inside the standard library (bad sizes, allocation failures).
     throw Error(path + ": cannot read VDB file (corrupt?): " + e.what());
   }
+}
+
+}  // namespace
+
+std::vector<VdbGridInfo> listVdbGrids(const std::string& path) {
+  return readVdbStream(path,
+                       [](std::istream& in, std::int64_t size) { return GridSelector().list(in, size); });
+}
+
+SparseVolume readVdb(const std::string& path, const VdbReadOptions& options) {
+  std::vector<VdbGridInfo> infos;
+  openvdb::GridBase::Ptr base = readVdbStream(path, [&](std::istream& in, std::int64_t size) {
+    return GridSelector().read(in, size, options.gridName, infos);
+  });
   std::string name = options.gridName;
   if (!base) {
     if (name.empty())
