@@ -727,18 +727,21 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
       if (found.load(std::memory_order_relaxed)) return;
       const std::size_t c = cells[j];
       CornerPatch patch = model.patch(c, loops[c]);
+      const CellReference ref = reference(c);
       for (int f = 0; f < 6; ++f) {
         const std::int32_t i = cellFaces[c][f];
         if (i < 0) continue;
         const FaceEntry& face = faces[static_cast<std::size_t>(i)];
         const std::size_t first = face.cell[0];
-        const FaceResult fr = fitFace(first == c ? patch : model.patch(first, loops[first]),
-                                      model.cells[first].pairing03, face.face[0], reference(first));
+        const FaceResult fr = first == c
+                                  ? fitFace(patch, model.cells[c].pairing03, face.face[0], ref)
+                                  : fitFace(model.patch(first, loops[first]), model.cells[first].pairing03,
+                                            face.face[0], reference(first));
         if (!fr.ok) return;
         patch.faceCoefficient[static_cast<std::size_t>(f)] = fr.coefficient;
       }
       patch.central = 0;
-      if (fitCell(patch, reference(c)).ok) found.store(true, std::memory_order_relaxed);
+      if (fitCell(patch, ref).ok) found.store(true, std::memory_order_relaxed);
     });
     return found.load();
   };
@@ -935,11 +938,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   }
   for (auto ok : faceOk) stats.failedFaces += !ok;
   for (auto ok : cellOk) stats.failedCells += !ok;
-  for (std::size_t i = 0; i < faces.size(); ++i)
-    if (!faceOk[i])
-      for (int s = 0; s < faces[i].count; ++s) cellOk[faces[i].cell[s]] = 0;
-  for (std::size_t c = 0; c < numCells; ++c)
-    if (!cellOk[c]) stats.unresolvedCells.push_back(static_cast<std::uint32_t>(c));
+  stats.unresolvedCells = unresolvedCells();
   return stats;
 }
 
