@@ -11,10 +11,12 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <mutex>
 #include <set>
 
 #include "cip/error.h"
+#include "cip/vdb_tree_check.h"
 #include "cip/volume_input.h"
 
 namespace cip {
@@ -104,14 +106,19 @@ class GridSelector : public openvdb::io::Archive {
       infos.push_back({gd.gridName(), valueType, "unknown"});
       const bool scalar = valueType == "float" || valueType == "double";
       const bool match = wanted.empty() ? scalar : gd.gridName() == wanted;
-      if (match && gd.isInstance()) return readEverything(is, gd, infos);
-      if (match || !inputHasGridOffsets()) {
-        checkGridMetadata(is, size);
+      if (match && gd.isInstance()) return readEverything(is, size, gd, infos);
+      if (match) {
+        const std::streampos start = is.tellg();
+        checkGrid(is, size, gd);
+        is.seekg(start);
         openvdb::io::Archive::readGrid(grid, gd, is);
         infos.back().gridClass = gridClassName(grid->getGridClass());
-        if (match) return grid;
-      } else {
+        return grid;
+      }
+      if (inputHasGridOffsets()) {
         gd.seekToEnd(is);
+      } else {
+        infos.back().gridClass = gridClassName(checkGrid(is, size, gd)->getGridClass());
       }
     }
     return nullptr;
@@ -126,13 +133,13 @@ class GridSelector : public openvdb::io::Archive {
       openvdb::io::GridDescriptor gd;
       openvdb::GridBase::Ptr grid = readDescriptor(is, size, gd);
       if (!grid) break;
-      checkGridMetadata(is, size);
       if (inputHasGridOffsets()) {
+        checkGridMetadata(is, size);
         readGridCompression(is);
         grid->readMeta(is);
         gd.seekToEnd(is);
       } else {
-        openvdb::io::Archive::readGrid(grid, gd, is);
+        grid = checkGrid(is, size, gd);
       }
       infos.push_back({gd.gridName(), grid->valueType(), gridClassName(grid->getGridClass())});
     }
@@ -181,9 +188,61 @@ class GridSelector : public openvdb::io::Archive {
     is.seekg(start);
   }
 
-  /// Fallback for instances: read the whole stream again from the start with OpenVDB's Stream.
-  openvdb::GridBase::Ptr readEverything(std::istream& is, const openvdb::io::GridDescriptor& wanted,
+  /// Checks the grid that starts at the stream's position (its compression flags) through its end, where it
+  /// leaves the stream: the sizes in its metadata and transform, then its tree (checkVdbTree; an instance has
+  /// none). Returns a grid of the descriptor's type holding the grid's metadata and transform.
+  openvdb::GridBase::Ptr checkGrid(std::istream& is, std::int64_t size,
+                                   const openvdb::io::GridDescriptor& gd) {
+    openvdb::GridBase::Ptr grid = openvdb::GridBase::createGrid(gd.gridType());
+    grid->setSaveFloatAsHalf(gd.saveFloatAsHalf());
+    readGridCompression(is);
+    checkMetaMap(is, size);
+    grid->readMeta(is);
+    if (fileVersion() < openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION)
+      throw Error("VDB format version " + std::to_string(fileVersion()) +
+                  " is older than 222 (OpenVDB 2.0), which cip reads");
+    {
+      const std::streampos start = is.tellg();
+      skipSized(is, size, "a transform's map type name");
+      is.seekg(start);
+    }
+    grid->readTransform(is);
+    if (gd.isInstance()) return grid;
+    // Bytes per value at full precision and as half floats (0: no half form), by tree type.
+    static const std::map<std::string, std::pair<int, int>> kValueBytes{
+        {"Tree_float_5_4_3", {4, 2}},  {"Tree_double_5_4_3", {8, 2}}, {"Tree_vec3s_5_4_3", {12, 6}},
+        {"Tree_vec3d_5_4_3", {24, 6}}, {"Tree_int32_5_4_3", {4, 0}},  {"Tree_int64_5_4_3", {8, 0}},
+        {"Tree_vec3i_5_4_3", {12, 0}}};
+    const auto it = kValueBytes.find(grid->type());
+    if (it == kValueBytes.end())
+      throw Error("grid '" + gd.gridName() + "' has a tree of type " + grid->type() +
+                  ", which cip cannot check before reading (it reads float and double grids, and passes over "
+                  "float, double, int32, int64 and vec3 grids in files without grid offsets)");
+    VdbTreeFormat format;
+    format.fileVersion = fileVersion();
+    format.compression = openvdb::io::getDataCompression(is);
+    format.valueBytes = it->second.first;
+    format.halfBytes = it->second.second;
+    format.fromHalf = grid->saveFloatAsHalf();
+    format.seekable = streamMetadata_->seekable();
+    checkVdbTree(is, size, format);
+    return grid;
+  }
+
+  /// Fallback for instances: check every grid, then read the whole stream again from the start with OpenVDB's
+  /// Stream.
+  openvdb::GridBase::Ptr readEverything(std::istream& is, std::int64_t size,
+                                        const openvdb::io::GridDescriptor& wanted,
                                         std::vector<VdbGridInfo>& infos) {
+    is.clear();
+    is.seekg(0);
+    const std::int32_t count = readUpToGrids(is, size);
+    for (std::int32_t n = 0; n < count; ++n) {
+      openvdb::io::GridDescriptor gd;
+      readDescriptor(is, size, gd);
+      checkGrid(is, size, gd);
+      if (inputHasGridOffsets()) gd.seekToEnd(is);
+    }
     is.clear();
     is.seekg(0);
     openvdb::io::Stream stream(is, /*delayLoad=*/false);

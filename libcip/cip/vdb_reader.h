@@ -8,7 +8,8 @@
 /// (rotations, shears, mirrors and frustum transforms are rejected with a clear error). The global cells are
 /// tiled into cubes of `brickCells` cells; a brick is kept only if it owns a cell with an active corner.
 /// Brick values come from the tree (inactive points read as the background, or -background inside a level
-/// set). OpenVDB itself is used only in vdb_reader.cpp.
+/// set). Every size stored in the file, down to the value chunks of the grid's tree (vdb_tree_check.h), is
+/// checked before OpenVDB reads it. OpenVDB itself is used only in vdb_reader.cpp.
 #pragma once
 #include <string>
 #include <vector>
@@ -37,11 +38,12 @@ struct VdbGridInfo {
 std::vector<VdbGridInfo> listVdbGrids(const std::string& path);
 
 /// Reads one scalar grid of a .vdb file as bricks. Only that grid is loaded (others are skipped by their
-/// stored offsets), except in files without offsets and for instanced grids, where the grids before it are
-/// read too. A file that ends early is detected (OpenVDB alone would fill the missing values silently).
-/// Throws cip::Error (message starting with the path) for a missing or corrupt file, an unknown grid name
-/// (the message lists the file's grids), a grid that is not float or double, a grid without active voxels, an
-/// unsupported transform, or bricks over options.maxBytes.
+/// stored offsets), except in files without offsets, where the grids before it are walked over, and for
+/// instanced grids, where every grid is read (then every grid must have a float, double, int32, int64 or vec3
+/// tree, the types whose storage is checked). A file that ends early is detected (OpenVDB alone would fill
+/// the missing values silently). Throws cip::Error (message starting with the path) for a missing or corrupt
+/// file, an unknown grid name (the message lists the file's grids), a grid that is not float or double, a
+/// grid without active voxels, an unsupported transform, or bricks over options.maxBytes.
 SparseVolume readVdb(const std::string& path, const VdbReadOptions& options = {});
 
 }  // namespace cip
