@@ -264,6 +264,15 @@ TEST(VdbReader, Errors) {
               {"a grid type name at byte 79 claims"});
   expectError([&] { listVdbGrids(test::sourceFile(regressions + "openvdb-2gb-grid-metadata-name.vdb")); },
               {"a metadata name at byte 306 claims"});
+  // Inside metadata values: OpenVDB sizes the table for delayed loading by a leaf count and a blosc header
+  // inside the value (2 GB for 76 KB files), and reads a number or vector as its own size whatever the value's
+  // stored size says, which leaves it reading the following names where these checks did not look.
+  expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-2gb-delayed-load-count.vdb")); },
+              {"a metadata value of type __delayedload at byte 344 lists 2130706696 leaves"});
+  expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-2gb-delayed-load-table.vdb")); },
+              {"__delayedload at byte 344 has a compressed table of 2315222784 bytes"});
+  expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-misread-int32-metadata.vdb")); },
+              {"a metadata value of type int32 at byte 235 has 12 bytes instead of 4"});
   getrusage(RUSAGE_SELF, &after);
   EXPECT_LT(after.ru_maxrss - before.ru_maxrss, 256 * 1024);  // kilobytes
   o.maxBytes = DenseGrid::defaultMaxBytes();

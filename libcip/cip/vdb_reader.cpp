@@ -49,8 +49,9 @@ std::string listing(const std::vector<VdbGridInfo>& infos) {
 
 /// OpenVDB reads strings and metadata values as a 32-bit size followed by that many bytes, and allocates the
 /// size before it reads: a 589-byte file made it allocate 4 GB. These checks walk such fields ahead of
-/// OpenVDB, reject a size larger than the rest of the file, and return to where they started.
-void skipSized(std::istream& is, std::int64_t fileSize, const char* what) {
+/// OpenVDB, reject a size larger than the rest of the file, and return to where they started. skipSized
+/// leaves the stream after the field and returns its size.
+std::uint32_t skipSized(std::istream& is, std::int64_t fileSize, const char* what) {
   std::uint32_t n = 0;
   is.read(reinterpret_cast<char*>(&n), sizeof n);
   const std::int64_t at = static_cast<std::int64_t>(is.tellg());
@@ -58,6 +59,83 @@ void skipSized(std::istream& is, std::int64_t fileSize, const char* what) {
     throw Error(std::string(what) + " at byte " + std::to_string(at) + " claims " + std::to_string(n) +
                 " bytes, but the file has " + std::to_string(fileSize) + ": it is truncated or corrupt");
   is.seekg(static_cast<std::streamoff>(n), std::ios::cur);
+  return n;
+}
+
+/// A size-prefixed string, checked as skipSized does.
+std::string readSized(std::istream& is, std::int64_t fileSize, const char* what) {
+  const std::uint32_t n = skipSized(is, fileSize, what);
+  std::string s(n, '\0');
+  is.seekg(-static_cast<std::streamoff>(n), std::ios::cur);
+  is.read(s.data(), static_cast<std::streamsize>(n));
+  return s;
+}
+
+/// Checks a metadata value of type `type` stored in `bytes` bytes from byte `at` (the stream is left where it
+/// was). OpenVDB reads a value of a fixed-size type (bool, numbers, vectors, matrices) as that many bytes
+/// whatever the stored size says, and its table for delayed loading by counts inside the value: a value that
+/// does not match would make OpenVDB read past it, away from where these checks looked, or allocate by a
+/// count.
+void checkMetadataValue(std::istream& is, const std::string& type, std::int64_t at, std::uint32_t bytes,
+                        std::int64_t fileSize) {
+  static const std::map<std::string, std::uint32_t> kFixedBytes{
+      {"bool", 1},   {"int32", 4},  {"int64", 8},  {"float", 4},  {"double", 8}, {"vec2i", 8},
+      {"vec2s", 8},  {"vec2d", 16}, {"vec3i", 12}, {"vec3s", 12}, {"vec3d", 24}, {"vec4i", 16},
+      {"vec4s", 16}, {"vec4d", 32}, {"mat4s", 64}, {"mat4d", 128}};
+  auto corrupt = [&](const std::string& problem) {
+    throw Error("a metadata value of type " + type + " at byte " + std::to_string(at) + " " + problem +
+                ": the file is corrupt");
+  };
+  if (const auto it = kFixedBytes.find(type); it != kFixedBytes.end()) {
+    if (bytes != it->second)
+      corrupt("has " + std::to_string(bytes) + " bytes instead of " + std::to_string(it->second));
+    return;
+  }
+  if (type != "__delayedload" || bytes == 0) return;
+  // A leaf count, then a table of one byte per leaf and one of eight bytes per leaf (its stored size may be
+  // 0xffffffff: no table), each raw (stored size 0) or a blosc chunk of the stored size.
+  const std::streampos end = is.tellg();
+  is.seekg(at);
+  std::int64_t left = bytes;
+  auto word = [&] {
+    if (left < 4) corrupt("ends inside its fields");
+    std::uint32_t v = 0;
+    is.read(reinterpret_cast<char*>(&v), sizeof v);
+    left -= 4;
+    return v;
+  };
+  const std::uint32_t count = word();
+  if (static_cast<std::int64_t>(count) > fileSize / 64)  // a leaf takes at least its 64-byte mask
+    corrupt("lists " + std::to_string(count) + " leaves, more than the file can hold");
+  auto table = [&](std::int64_t entryBytes, bool optional) {
+    const std::uint32_t stored = word();
+    if (optional && stored == 0xffffffffu) return;
+    const std::int64_t raw = entryBytes * count;
+    if (stored == 0) {
+      if (raw > left) corrupt("ends inside its tables");
+      is.seekg(static_cast<std::streamoff>(raw), std::ios::cur);
+      left -= raw;
+      return;
+    }
+    if (stored > left || stored < 16)
+      corrupt("has a compressed table of " + std::to_string(stored) + " bytes");
+    unsigned char header[16];
+    is.read(reinterpret_cast<char*>(header), sizeof header);
+    auto field = [&](int k) {
+      return std::uint32_t{header[k]} | std::uint32_t{header[k + 1]} << 8 |
+             std::uint32_t{header[k + 2]} << 16 | std::uint32_t{header[k + 3]} << 24;
+    };
+    // blosc's uncompressed size (OpenVDB pads tables under 128 bytes to 128 before compressing them) and
+    // compressed size
+    const std::int64_t uncompressed = field(4);
+    if (uncompressed < raw || uncompressed > std::max<std::int64_t>(raw, 128) || field(12) > stored)
+      corrupt("has a compressed table whose header does not match it");
+    is.seekg(static_cast<std::streamoff>(stored) - 16, std::ios::cur);
+    left -= stored;
+  };
+  table(1, false);
+  table(8, true);
+  is.seekg(end);
 }
 
 /// Checks a metadata map (count; per entry a name, a type name and a size-prefixed value).
@@ -67,8 +145,10 @@ void checkMetaMap(std::istream& is, std::int64_t fileSize) {
   is.read(reinterpret_cast<char*>(&count), sizeof count);
   for (std::uint32_t i = 0; i < count; ++i) {  // each entry takes at least 12 bytes: bounded by the file
     skipSized(is, fileSize, "a metadata name");
-    skipSized(is, fileSize, "a metadata type name");
-    skipSized(is, fileSize, "a metadata value");
+    const std::string type = readSized(is, fileSize, "a metadata type name");
+    const std::int64_t valueAt = static_cast<std::int64_t>(is.tellg()) + 4;
+    const std::uint32_t bytes = skipSized(is, fileSize, "a metadata value");
+    checkMetadataValue(is, type, valueAt, bytes, fileSize);
   }
   is.seekg(start);
 }
