@@ -119,16 +119,10 @@ void checkMetadataValue(std::istream& is, const std::string& type, std::int64_t 
     }
     if (stored > left || stored < 16)
       corrupt("has a compressed table of " + std::to_string(stored) + " bytes");
-    unsigned char header[16];
-    is.read(reinterpret_cast<char*>(header), sizeof header);
-    auto field = [&](int k) {
-      return std::uint32_t{header[k]} | std::uint32_t{header[k + 1]} << 8 |
-             std::uint32_t{header[k + 2]} << 16 | std::uint32_t{header[k + 3]} << 24;
-    };
-    // blosc's uncompressed size (OpenVDB pads tables under 128 bytes to 128 before compressing them) and
-    // compressed size
-    const std::int64_t uncompressed = field(4);
-    if (uncompressed < raw || uncompressed > std::max<std::int64_t>(raw, 128) || field(12) > stored)
+    // OpenVDB pads tables under 128 bytes to 128 before compressing them.
+    const BloscSizes header = readBloscHeader(is);
+    if (header.uncompressed < raw || header.uncompressed > std::max<std::int64_t>(raw, 128) ||
+        header.compressed > stored)
       corrupt("has a compressed table whose header does not match it");
     is.seekg(static_cast<std::streamoff>(stored) - 16, std::ios::cur);
     left -= stored;

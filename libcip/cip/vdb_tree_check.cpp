@@ -180,18 +180,13 @@ class TreeWalk {
     if (blosc) {
       if (stored < kBloscHeader)
         fail(what, "are a blosc chunk shorter than its header: the file is corrupt", start);
-      std::array<unsigned char, kBloscHeader> header{};
-      is_.read(reinterpret_cast<char*>(header.data()), kBloscHeader);
-      auto field = [&](int offset) {
-        return std::uint32_t{header[offset]} | std::uint32_t{header[offset + 1]} << 8 |
-               std::uint32_t{header[offset + 2]} << 16 | std::uint32_t{header[offset + 3]} << 24;
-      };
-      // Blosc trusts the compressed size in the header: it must not exceed the chunk.
-      if (field(4) != bytes || field(12) > stored || field(12) < kBloscHeader)
+      const BloscSizes header = readBloscHeader(is_);
+      if (header.uncompressed != bytes || header.compressed > stored || header.compressed < kBloscHeader)
         fail(what,
              "are a blosc chunk of " + std::to_string(stored) + " bytes whose header claims " +
-                 std::to_string(field(12)) + " compressed and " + std::to_string(field(4)) +
-                 " uncompressed bytes where " + std::to_string(bytes) + " are needed: the file is corrupt",
+                 std::to_string(header.compressed) + " compressed and " +
+                 std::to_string(header.uncompressed) + " uncompressed bytes where " + std::to_string(bytes) +
+                 " are needed: the file is corrupt",
              start);
       skip(stored - kBloscHeader, "a compressed chunk");
     } else {
@@ -201,6 +196,18 @@ class TreeWalk {
 };
 
 }  // namespace
+
+BloscSizes readBloscHeader(std::istream& is) {
+  unsigned char header[kBloscHeader];
+  is.read(reinterpret_cast<char*>(header), kBloscHeader);
+  auto field = [&](int k) {
+    return std::uint32_t{header[k]} | std::uint32_t{header[k + 1]} << 8 | std::uint32_t{header[k + 2]} << 16 |
+           std::uint32_t{header[k + 3]} << 24;
+  };
+  // Version, format version, flags and type size, then the uncompressed size, the block size and the
+  // compressed size.
+  return {field(4), field(12)};
+}
 
 void checkVdbTree(std::istream& is, std::int64_t fileSize, const VdbTreeFormat& format) {
   TreeWalk(is, fileSize, format).run();

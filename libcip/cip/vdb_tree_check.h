@@ -26,6 +26,14 @@ struct VdbTreeFormat {
   bool seekable = false;
 };
 
+/// The sizes in the 16-byte header that starts a blosc chunk: the bytes it decompresses to, and the bytes of
+/// the chunk blosc reads (blosc trusts this one).
+struct BloscSizes {
+  std::uint32_t uncompressed = 0, compressed = 0;
+};
+/// Reads a blosc header (16 bytes, little-endian fields) from the stream.
+BloscSizes readBloscHeader(std::istream& is);
+
 /// Walks the tree from the stream's position (its start, after the grid's transform) to the end of its leaf
 /// buffers, where it leaves the stream. Throws cip::Error naming the byte offset for a size larger than the
 /// rest of the file (`fileSize` bytes), a chunk whose stored size is not the size its node needs, or a format
