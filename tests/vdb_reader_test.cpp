@@ -265,8 +265,8 @@ TEST(VdbReader, Errors) {
   expectError([&] { listVdbGrids(test::sourceFile(regressions + "openvdb-2gb-grid-metadata-name.vdb")); },
               {"a metadata name at byte 306 claims"});
   // Inside metadata values: OpenVDB sizes the table for delayed loading by a leaf count and a blosc header
-  // inside the value (2 GB for 76 KB files), and reads a number or vector as its own size whatever the value's
-  // stored size says, which leaves it reading the following names where these checks did not look.
+  // inside the value (2 GB for 76 KB files), and reads a number or vector as its own size whatever the
+  // value's stored size says, which leaves it reading the following names where these checks did not look.
   expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-2gb-delayed-load-count.vdb")); },
               {"a metadata value of type __delayedload at byte 344 lists 2130706696 leaves"});
   expectError([&] { readVdb(test::sourceFile(regressions + "openvdb-2gb-delayed-load-table.vdb")); },
@@ -278,6 +278,24 @@ TEST(VdbReader, Errors) {
   o.maxBytes = DenseGrid::defaultMaxBytes();
   o.brickCells = 0;
   expectError([&] { readVdb(sphere, o); }, {"brick size"});
+}
+
+TEST(VdbReader, HugeActiveTileIsRefusedBeforeItsBricksAreListed) {
+  // One active tile of 4096^3 voxels takes a few bytes in a file and 2 million bricks (700 GB) as dense
+  // bricks: the reader stops listing bricks once their samples pass the limit (a corrupt 76 KB file once made
+  // it list bricks for 338 MB before the size check).
+  openvdb::initialize();
+  test::ScratchDir dir;
+  auto grid = openvdb::FloatGrid::create(0.0f);
+  grid->setName("block");
+  grid->fill(openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(4095)), 1.0f, true);
+  openvdb::io::File(dir.file("t.vdb")).write({grid});
+  rusage before{}, after{};
+  getrusage(RUSAGE_SELF, &before);
+  expectError([&] { readVdb(dir.file("t.vdb")); },
+              {"'block' needs more dense bricks than the", "MiB allowed"});
+  getrusage(RUSAGE_SELF, &after);
+  EXPECT_LT(after.ru_maxrss - before.ru_maxrss, 256 * 1024);  // kilobytes
 }
 
 TEST(VdbReader, GridsWithoutActiveVoxelsOrWithRotations) {

@@ -385,9 +385,32 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
     nb[a] = (cells[a] + B - 1) / B;
   }
 
+  // A brick's placement in the global grid: the cells it owns plus an apron of one point where the grid goes
+  // on.
+  auto place = [&](const BrickKey& k, GridBrick& brick) {
+    std::array<std::int64_t, 3> bdims;
+    for (int a = 0; a < 3; ++a) {
+      std::int64_t c0 = k[a] * B, c1 = std::min(c0 + B, cells[a]);  // owned cells [c0, c1)
+      std::int64_t apronLo = c0 > 0 ? 1 : 0;
+      std::int64_t apronHi = c1 + 1 < dims[a] ? 1 : 0;
+      brick.offset[a] = c0 - apronLo;
+      brick.cellBegin[a] = apronLo;
+      brick.cellEnd[a] = apronLo + (c1 - c0);
+      bdims[a] = (c1 - c0) + 1 + apronLo + apronHi;
+    }
+    return static_cast<std::uint64_t>(bdims[0] * bdims[1] * bdims[2]);
+  };
   // Bricks owning a cell with an active corner: an active point p (global) is a corner of cells p-1 and p per
-  // axis.
+  // axis. Their samples are counted as they are found, and the search stops once they exceed the limit: a
+  // small file can hold active tiles that span more bricks than memory (a set entry per brick).
+  const std::uint64_t maxPoints = options.maxBytes / sizeof(double);
+  std::uint64_t totalPoints = 0;
   std::set<BrickKey> keys;
+  auto add = [&](const BrickKey& k) {
+    GridBrick unused;
+    if (keys.insert(k).second) totalPoints += place(k, unused);
+    return totalPoints <= maxPoints;
+  };
   BrickKey last{-1, -1, -1};
   auto addRange = [&](const std::array<std::int64_t, 3>& pmin, const std::array<std::int64_t, 3>& pmax) {
     std::array<std::int64_t, 3> b0, b1;
@@ -396,15 +419,18 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
       b1[a] = std::min<std::int64_t>(pmax[a], cells[a] - 1) / B;
     }
     if (b0 == b1) {
-      if (b0 != last) keys.insert(b0);
+      if (b0 == last) return true;
       last = b0;
-      return;
+      return add(b0);
     }
     for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
       for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
-        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) keys.insert({x, y, z});
+        for (std::int64_t x = b0[0]; x <= b1[0]; ++x)
+          if (!add({x, y, z})) return false;
+    return true;
   };
-  for (auto it = grid.cbeginValueOn(); it; ++it) {
+  bool complete = true;
+  for (auto it = grid.cbeginValueOn(); it && complete; ++it) {
     openvdb::CoordBBox box;
     if (it.isVoxelValue()) {
       box = openvdb::CoordBBox(it.getCoord(), it.getCoord());
@@ -417,36 +443,16 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
       pmin[a] = static_cast<std::int64_t>(box.min()[a]) - lo[a];
       pmax[a] = static_cast<std::int64_t>(box.max()[a]) - lo[a];
     }
-    addRange(pmin, pmax);
-    if (keys.size() > (std::size_t(1) << 26)) break;  // the byte check below reports it
+    complete = addRange(pmin, pmax);
   }
-
-  // Brick extents, then a size check before allocating anything.
+  if (!complete) {
+    throw Error(path + ": grid '" + name + "' needs more dense bricks than the " +
+                std::to_string(options.maxBytes >> 20) + " MiB allowed");
+  }
   SparseVolume volume;
-  volume.bricks.reserve(keys.size());
-  std::uint64_t totalPoints = 0;
-  for (const BrickKey& k : keys) {
-    GridBrick brick;
-    std::array<std::int64_t, 3> bdims;
-    for (int a = 0; a < 3; ++a) {
-      std::int64_t c0 = k[a] * B, c1 = std::min(c0 + B, cells[a]);  // owned cells [c0, c1)
-      std::int64_t apronLo = c0 > 0 ? 1 : 0;
-      std::int64_t apronHi = c1 + 1 < dims[a] ? 1 : 0;
-      brick.offset[a] = c0 - apronLo;
-      brick.cellBegin[a] = apronLo;
-      brick.cellEnd[a] = apronLo + (c1 - c0);
-      bdims[a] = (c1 - c0) + 1 + apronLo + apronHi;
-    }
-    totalPoints += static_cast<std::uint64_t>(bdims[0] * bdims[1] * bdims[2]);
-    volume.bricks.push_back(brick);
-  }
-  if (keys.size() > (std::size_t(1) << 26) || totalPoints > options.maxBytes / sizeof(double)) {
-    throw Error(path + ": grid '" + name + "' needs " +
-                (keys.size() > (std::size_t(1) << 26)
-                     ? std::string("more than 67108864 bricks")
-                     : std::to_string((totalPoints * sizeof(double)) >> 20) + " MiB") +
-                " of dense bricks, more than the " + std::to_string(options.maxBytes >> 20) + " MiB allowed");
-  }
+  volume.bricks.resize(keys.size());
+  std::size_t next = 0;
+  for (const BrickKey& k : keys) place(k, volume.bricks[next++]);
 
   volume.grids.resize(volume.bricks.size());
   for (std::size_t b = 0; b < volume.bricks.size(); ++b) {
