@@ -139,7 +139,7 @@ TEST(VdbTreeCheck, AcceptsEveryWayOpenVdbStoresATree) {
   }
 }
 
-TEST(VdbTreeCheck, RejectsCorruptChunkSizes) {
+TEST(VdbTreeCheck, RejectsCorruptTreesFoundByFuzzing) {
   // Found by fuzzing: an internal node's chunk marked as uncompressed with a size far larger than the node;
   // OpenVDB 10 read it into the node's buffer (heap overflow, then an abort in glibc).
   expectError(
@@ -148,6 +148,12 @@ TEST(VdbTreeCheck, RejectsCorruptChunkSizes) {
       },
       {"the values of an internal node at byte 75606", "stored size -2864576066649890121", "516 bytes",
        "corrupt"});
+  // Also found by fuzzing: a root that lists the same child twice. OpenVDB replaces the first in its table
+  // and leaks it (about 270 KB each); in the fuzzer's long-lived processes these leaks added up to its memory
+  // limit.
+  expectError(
+      [&] { readVdb(test::sourceFile("tests/fuzz/regressions/vdb/openvdb-leak-repeated-root-child.vdb")); },
+      {"a root child's origin at byte 17101 repeats an earlier child's"});
 }
 
 TEST(VdbTreeCheck, SingleByteCorruptionsGiveErrorsNotCrashes) {
@@ -196,11 +202,11 @@ std::string oneLeafTree(std::uint32_t compression, const std::string& leafChunk,
     if (compression & (openvdb::io::COMPRESS_ZIP | openvdb::io::COMPRESS_BLOSC)) put(-bytes);
     os << std::string(static_cast<std::size_t>(bytes), '\0');
   };
-  put(std::int32_t{1});                                // buffer count
-  put(0.0f);                                           // background
-  put(std::uint32_t{0});                               // tiles
-  put(std::uint32_t{1});                               // children
-  for (int i = 0; i < 3; ++i) put(std::int32_t{-64});  // the child's origin
+  put(std::int32_t{1});                                  // buffer count
+  put(0.0f);                                             // background
+  put(std::uint32_t{0});                                 // tiles
+  put(std::uint32_t{1});                                 // children
+  for (int i = 0; i < 3; ++i) put(std::int32_t{-4096});  // the child's origin
   std::string upper(4096, '\0'), lower(512, '\0'), leaf(64, '\xff');
   upper[0] = lower[0] = 1;                 // one child each
   os << upper << std::string(4096, '\0');  // child and value masks

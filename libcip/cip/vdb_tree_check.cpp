@@ -55,8 +55,7 @@ class TreeWalk {
       fail("the tree's buffer count", "is " + std::to_string(bufferCount) + ", not 1: the file is corrupt",
            countAt);
     // Root: background, tile and child counts, tiles, then children (each an upper internal node). OpenVDB
-    // keeps them in a table ordered by origin, where a later child replaces an earlier one at the same
-    // origin, and reads the buffers in that order.
+    // keeps them in a table ordered by origin and reads the buffers in that order.
     skip(format_.valueBytes, "the background value");
     const std::uint32_t numTiles = read<std::uint32_t>("the root's tile count");
     const std::uint32_t numChildren = read<std::uint32_t>("the root's child count");
@@ -66,8 +65,18 @@ class TreeWalk {
     need(static_cast<std::int64_t>(numChildren) * (12 + 2 * maskBytes(kUpperLog2)), "the root's children");
     std::map<std::array<std::int32_t, 3>, std::vector<std::uint16_t>> children;
     for (std::uint32_t n = 0; n < numChildren; ++n) {
+      const std::int64_t originAt = at();
       std::array<std::int32_t, 3> origin{};
       for (auto& c : origin) c = read<std::int32_t>("a root child's origin");
+      // OpenVDB writes its table's keys: the children's origins, each once and on a multiple of the upper
+      // node's side. It would replace (and leak) a child listed twice.
+      const std::int32_t side = 1 << (kUpperLog2 + kLowerLog2 + kLeafLog2);
+      for (std::int32_t c : origin)
+        if (c % side != 0)
+          fail("a root child's origin",
+               "is not a multiple of " + std::to_string(side) + ": the file is corrupt", originAt);
+      if (children.count(origin))
+        fail("a root child's origin", "repeats an earlier child's: the file is corrupt", originAt);
       std::vector<std::uint16_t> leaves;  // active values of each leaf, in buffer order
       internalTopology(kUpperLog2, leaves);
       children[origin] = std::move(leaves);
