@@ -274,7 +274,7 @@ class GridSelector : public openvdb::io::Archive {
     grid->readMeta(is);
     if (fileVersion() < openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION)
       throw Error("VDB format version " + std::to_string(fileVersion()) +
-                  " is older than 222 (OpenVDB 2.0), which cip reads");
+                  " is older than 222 (OpenVDB 2.0), the oldest cip reads");
     {
       const std::streampos start = is.tellg();
       skipSized(is, size, "a transform's map type name");

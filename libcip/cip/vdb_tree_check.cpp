@@ -48,7 +48,7 @@ class TreeWalk {
   void run() {
     if (format_.fileVersion < kNodeMaskCompressionVersion)
       throw Error("VDB format version " + std::to_string(format_.fileVersion) +
-                  " is older than 222 (OpenVDB 2.0), which cip reads");
+                  " is older than 222 (OpenVDB 2.0), the oldest cip reads");
     const std::int64_t countAt = at();
     const auto bufferCount = read<std::int32_t>("the tree's buffer count");
     if (bufferCount != 1)  // OpenVDB only warns and reads on
