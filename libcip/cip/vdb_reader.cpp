@@ -379,11 +379,8 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
 
   const std::int64_t B = options.brickCells;
   if (B < 1) throw Error(path + ": brick size must be at least 1 cell");
-  std::array<std::int64_t, 3> cells, nb;
-  for (int a = 0; a < 3; ++a) {
-    cells[a] = dims[a] - 1;
-    nb[a] = (cells[a] + B - 1) / B;
-  }
+  std::array<std::int64_t, 3> cells;
+  for (int a = 0; a < 3; ++a) cells[a] = dims[a] - 1;
 
   // A brick's placement in the global grid: the cells it owns plus an apron of one point where the grid goes
   // on.
