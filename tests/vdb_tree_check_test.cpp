@@ -51,10 +51,9 @@ struct LeaksIgnored {
 
 using test::expectError;
 
-/// A float grid whose tree has every kind of node OpenVDB stores differently: three root children (one at
-/// negative coordinates, so the root's table order differs from the write order), leaves whose inactive
-/// values are the background, its negative, one other value, two others and many others, and active and
-/// inactive tiles in internal nodes.
+/// A grid whose tree has every kind of node OpenVDB stores differently: three root children (one at negative
+/// coordinates), leaves whose inactive values are the background, its negative, one other value, two others
+/// and many others (distinct cases under mask compression), and active and inactive tiles in internal nodes.
 template <class GridT>
 typename GridT::Ptr variedGrid(const std::string& name) {
   using V = typename GridT::ValueType;
