@@ -208,9 +208,7 @@ class GridSelector : public openvdb::io::Archive {
       openvdb::GridBase::Ptr grid = readDescriptor(is, size, gd);
       if (!grid) break;
       if (inputHasGridOffsets()) {
-        checkGridMetadata(is, size);
-        readGridCompression(is);
-        grid->readMeta(is);
+        readGridMetadata(is, size, *grid);
         gd.seekToEnd(is);
       } else {
         grid = checkGrid(is, size, gd);
@@ -254,12 +252,12 @@ class GridSelector : public openvdb::io::Archive {
     return grid;
   }
 
-  /// Checks a grid's metadata map, which follows its compression flags where the grid starts.
-  static void checkGridMetadata(std::istream& is, std::int64_t fileSize) {
-    const std::streampos start = is.tellg();
+  /// Reads the compression flags at the grid's start (into the stream's state) and its metadata into `grid`,
+  /// checking the metadata's sizes first.
+  static void readGridMetadata(std::istream& is, std::int64_t fileSize, openvdb::GridBase& grid) {
     readGridCompression(is);
     checkMetaMap(is, fileSize);
-    is.seekg(start);
+    grid.readMeta(is);
   }
 
   /// Checks the grid that starts at the stream's position (its compression flags) through its end, where it
@@ -269,9 +267,7 @@ class GridSelector : public openvdb::io::Archive {
                                    const openvdb::io::GridDescriptor& gd) {
     openvdb::GridBase::Ptr grid = openvdb::GridBase::createGrid(gd.gridType());
     grid->setSaveFloatAsHalf(gd.saveFloatAsHalf());
-    readGridCompression(is);
-    checkMetaMap(is, size);
-    grid->readMeta(is);
+    readGridMetadata(is, size, *grid);
     if (fileVersion() < openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION)
       throw Error("VDB format version " + std::to_string(fileVersion()) +
                   " is older than 222 (OpenVDB 2.0), the oldest cip reads");
