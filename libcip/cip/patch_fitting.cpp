@@ -154,17 +154,54 @@ void referenceFaceLattice(const CellReference& ref, int f, double* value) {
   constexpr int stride[3] = {1, 4, 16};
   const int su = stride[uv[0]], sv = stride[uv[1]], sn = stride[axis];
   const auto& w = LatticeWeights<n>::get().w;
-  double along[n][4];  // contracted along u, per v-Hermite index
-  for (int a = 0; a < n; ++a)
-    for (int jb = 0; jb < 4; ++jb) {
-      along[a][jb] = 0;
-      for (int ia = 0; ia < 4; ++ia)
-        along[a][jb] += w[a][ia] * ref.hermite[static_cast<std::size_t>(ia * su + jb * sv + 2 * side * sn)];
+  double face[4][4];  // the face's Hermite data, [u index][v index]
+  for (int ia = 0; ia < 4; ++ia)
+    for (int jb = 0; jb < 4; ++jb)
+      face[ia][jb] = ref.hermite[static_cast<std::size_t>(ia * su + jb * sv + 2 * side * sn)];
+  double along[4][n];  // contracted along u, per v-Hermite index
+  for (int jb = 0; jb < 4; ++jb)
+    for (int a = 0; a < n; ++a) {
+      along[jb][a] = 0;
+      for (int ia = 0; ia < 4; ++ia) along[jb][a] += w[a][ia] * face[ia][jb];
     }
   for (int b = 0; b < n; ++b)
     for (int a = 0; a < n; ++a)
-      value[a + n * b] = w[b][0] * along[a][0] + w[b][1] * along[a][1] + w[b][2] * along[a][2] +
-                         w[b][3] * along[a][3] - ref.isovalue;
+      value[a + n * b] = w[b][0] * along[0][a] + w[b][1] * along[1][a] + w[b][2] * along[2][a] +
+                         w[b][3] * along[3][a] - ref.isovalue;
+}
+
+/// The reference gradient (per local unit) at point (u, v) of face f (face frame), as ref.gradient there but
+/// from the face's own Hermite data (values and derivatives across it): on the face the weights across it
+/// are 0 and 1, so a third of the work.
+Vec3 faceGradient(const CellReference& ref, int f, double u, double v) {
+  const int axis = cube::faceAxis(f), side = cube::faceSide(f);
+  const auto uv = cube::otherAxes(axis);
+  if (ref.field) {
+    Vec3 x;
+    x[axis] = side;
+    x[uv[0]] = u;
+    x[uv[1]] = v;
+    return ref.gradient(x);
+  }
+  constexpr int stride[3] = {1, 4, 16};
+  const int su = stride[uv[0]], sv = stride[uv[1]], sn = stride[axis];
+  double wu[4], du[4], wv[4], dv[4];
+  hermiteWeights(u, wu, du);
+  hermiteWeights(v, wv, dv);
+  Vec3 g = Vec3::Zero();
+  for (int jb = 0; jb < 4; ++jb) {
+    double value = 0, alongU = 0, across = 0;
+    for (int ia = 0; ia < 4; ++ia) {
+      const double* h = &ref.hermite[static_cast<std::size_t>(ia * su + jb * sv + 2 * side * sn)];
+      value += wu[ia] * h[0];
+      alongU += du[ia] * h[0];
+      across += wu[ia] * h[sn];
+    }
+    g[uv[0]] += wv[jb] * alongU;
+    g[uv[1]] += dv[jb] * value;
+    g[axis] += wv[jb] * across;
+  }
+  return g;
 }
 
 /// Whether the first-order distance |r| / |grad r| (smallest voxels) of a point with reference value r and
@@ -245,18 +282,39 @@ class PatchLines {
       t_[i] = t;
       for (int m = 0; m < 4; ++m) s_[m][i] = squares(m, t);
     }
+    // A term c (n . x + o) s_mL(x_L) s_mP(x_P) s_mQ(x_Q) adds s_mP[p] (t[p] X[q] + Y[q]) to A_mL[p, q] and
+    // s_mP[p] Z[q] to B_mL[p, q], with X = c n_P s_mQ, Y = c (o + n_Q t) s_mQ and Z = c n_L s_mQ: the terms
+    // are summed per pattern pair (mL, mP) along q first, then each pair spreads over the lines once.
+    double x[16][n], y[16][n], z[16][n];
+    unsigned pairs = 0;
     auto add = [&](double coefficient, const Vec3& normal, double offset, std::uint8_t mask) {
       const int mL = pattern(mask, axis_), mP = pattern(mask, other_[0]), mQ = pattern(mask, other_[1]);
-      used_ |= 1u << mL;
-      for (int q = 0; q < n; ++q)
-        for (int p = 0; p < n; ++p) {
-          const double across = coefficient * s_[mP][p] * s_[mQ][q];
-          const std::size_t pq = static_cast<std::size_t>(p + n * q);
-          b_[mL][pq] += across * normal[axis_];
-          a_[mL][pq] += across * (normal[other_[0]] * t_[p] + normal[other_[1]] * t_[q] + offset);
-        }
+      const int pair = 4 * mL + mP;
+      if (!((pairs >> pair) & 1)) {
+        pairs |= 1u << pair;
+        for (int q = 0; q < n; ++q) x[pair][q] = y[pair][q] = z[pair][q] = 0;
+      }
+      for (int q = 0; q < n; ++q) {
+        const double c = coefficient * s_[mQ][q];
+        x[pair][q] += c * normal[other_[0]];
+        y[pair][q] += c * (offset + normal[other_[1]] * t_[q]);
+        z[pair][q] += c * normal[axis_];
+      }
     };
     terms.forEach(add);
+    for (unsigned rest = pairs; rest; rest &= rest - 1) {
+      const int pair = __builtin_ctz(rest), mL = pair / 4, mP = pair % 4;
+      const bool first = !((used_ >> mL) & 1);
+      used_ |= 1u << mL;
+      double* a = a_[static_cast<std::size_t>(mL)].data();
+      double* b = b_[static_cast<std::size_t>(mL)].data();
+      for (int q = 0; q < n; ++q)
+        for (int p = 0; p < n; ++p) {
+          const double da = s_[mP][p] * (t_[p] * x[pair][q] + y[pair][q]), db = s_[mP][p] * z[pair][q];
+          a[p + n * q] = first ? da : a[p + n * q] + da;
+          b[p + n * q] = first ? db : b[p + n * q] + db;
+        }
+    }
     central_ = pattern(terms.faceMask, axis_);
     const int cP = pattern(terms.faceMask, other_[0]), cQ = pattern(terms.faceMask, other_[1]);
     for (int q = 0; q < n; ++q)
@@ -327,7 +385,7 @@ class PatchLines {
   int central_ = 0;
   unsigned used_ = 0;
   double t_[n], s_[4][n];
-  std::array<std::array<double, n * n>, 4> a_{}, b_{};
+  std::array<std::array<double, n * n>, 4> a_, b_;  ///< valid for the patterns in used_
   std::array<double, n * n> c_{};
 };
 
@@ -343,19 +401,32 @@ void patchFaceLattice(const LinearTerms& terms, int f, double* value, double* ba
     t[i] = latticeCoord(i, n);
     for (int m = 0; m < 4; ++m) sq[m][i] = squares(m, t[i]);
   }
-  std::fill(value, value + n * n, 0.0);
+  // A term adds su[a] (t[a] X[b] + Y[b]) with X = across sv n_u and Y = across sv (constant + n_v t): the
+  // terms are summed per pattern along u first (as in PatchLines).
+  double x[4][n], y[4][n];
+  unsigned patterns = 0;
   auto add = [&](double coefficient, const Vec3& normal, double offset, std::uint8_t mask) {
     const double across = coefficient * squares(pattern(mask, axis), side);
     if (across == 0) return;
-    const double* su = sq[pattern(mask, uv[0])];
+    const int mu = pattern(mask, uv[0]);
     const double* sv = sq[pattern(mask, uv[1])];
+    if (!((patterns >> mu) & 1)) {
+      patterns |= 1u << mu;
+      for (int b = 0; b < n; ++b) x[mu][b] = y[mu][b] = 0;
+    }
     const double constant = normal[axis] * side + offset;
     for (int b = 0; b < n; ++b) {
-      const double rowScale = across * sv[b], rowConstant = constant + normal[uv[1]] * t[b];
-      for (int a = 0; a < n; ++a) value[a + n * b] += rowScale * su[a] * (rowConstant + normal[uv[0]] * t[a]);
+      x[mu][b] += across * sv[b] * normal[uv[0]];
+      y[mu][b] += across * sv[b] * (constant + normal[uv[1]] * t[b]);
     }
   };
   terms.forEach(add);
+  std::fill(value, value + n * n, 0.0);
+  for (unsigned rest = patterns; rest; rest &= rest - 1) {
+    const int mu = __builtin_ctz(rest);
+    for (int b = 0; b < n; ++b)
+      for (int a = 0; a < n; ++a) value[a + n * b] += sq[mu][a] * (t[a] * x[mu][b] + y[mu][b]);
+  }
   const double across = squares(pattern(terms.faceMask, axis), side);
   const double* su = sq[pattern(terms.faceMask, uv[0])];
   const double* sv = sq[pattern(terms.faceMask, uv[1])];
@@ -520,7 +591,10 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   const LatticeLayout faceLayout(n, 2, faceAxes, ref.metric);
   const SignedCoefficient sc = solveSignConstraints(
       -num / den, samples,
-      [&](int i) { return farFromSurface(ref, r[i], ref.gradient(faceLatticePoint<n>(f, i % n, i / n))); },
+      [&](int i) {
+        return farFromSurface(ref, r[i],
+                              faceGradient(ref, f, latticeCoord(i % n, n), latticeCoord(i / n, n)));
+      },
       [&](int i) {
         return !neighbourCrosses(r.data(), i, faceLayout, kVerifiedVoxels) &&
                !referenceSurfaceWithin(ref, faceLatticePoint<n>(f, i % n, i / n), r[i], kVerifiedVoxels);
@@ -601,7 +675,14 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   // turns out farther than kVerifiedVoxels from the surface counts after all.
   const SignSamples samples{r.data(), value.data(), basis.data(), kLattice + nf * nf * numOpen};
   auto far = [&](int i) {
-    const Vec3 g = i < kLattice ? lines.gradient(r.data(), i) : ref.gradient(position(i));
+    Vec3 g;
+    if (i < kLattice) {
+      g = lines.gradient(r.data(), i);
+    } else {
+      const int j = (i - kLattice) % (nf * nf);
+      g = faceGradient(ref, openFace[static_cast<std::size_t>((i - kLattice) / (nf * nf))],
+                       latticeCoord(j % nf, nf), latticeCoord(j / nf, nf));
+    }
     return farFromSurface(ref, r[static_cast<std::size_t>(i)], g);
   };
   const int lineAxes[3] = {fitAxis, cube::otherAxes(fitAxis)[0], cube::otherAxes(fitAxis)[1]};
