@@ -371,10 +371,11 @@ class PatchLines {
   /// valueWithoutCentral (returned) and centralBasis at coordinate x along the line (p, q).
   double at(double x, int p, int q, double& basis) const {
     const std::size_t pq = static_cast<std::size_t>(p + n * q);
+    const double x2 = x * x, y2 = (1 - x) * (1 - x), s[4] = {1, x2, y2, x2 * y2};  // squares(m, x)
     double v = 0;
     for (int m = 0; m < 4; ++m)
-      if ((used_ >> m) & 1) v += squares(m, x) * (a_[m][pq] + x * b_[m][pq]);
-    basis = squares(central_, x) * c_[pq];
+      if ((used_ >> m) & 1) v += s[m] * (a_[m][pq] + x * b_[m][pq]);
+    basis = s[central_] * c_[pq];
     return v;
   }
 
