@@ -71,11 +71,13 @@ INSTANTIATE_TEST_SUITE_P(AnalyticFields, FittedPatches,
                            return std::get<0>(param.param) + "_" + toString(std::get<1>(param.param));
                          });
 
-// Marschner-Lobb at N = 32 has about 2.7 cells per ripple: about 160 cells have sign structure inside that
-// their loops cannot follow, and blending their normals only spreads the failures (more unresolved cells
-// after each round). The first fallback round is undone (none of the unresolved cells resolves when refitted
-// alone, so it ends before refitting the rest), the model is the unblended one, and it has no wrong-sign cell at
-// half a voxel, while ten rounds used to leave 1.1 % of the cells wrong-sign.
+// Marschner-Lobb at N = 32 has about 2.7 cells per ripple: 48 cells have sign structure inside that their
+// loops cannot follow, and blending their normals only spreads the failures (more unresolved cells after each
+// round). Near samples are confirmed near by a lattice neighbour of the other sign before Newton steps are
+// tried; with Newton steps alone, which miss some surfaces within reach in these ripples, 120 cells stayed
+// unresolved. The first fallback round is undone (none of the unresolved cells resolves when refitted
+// alone, so it ends before refitting the rest), the model is the unblended one, and it has no wrong-sign cell
+// at half a voxel, while ten rounds used to leave 1.1 % of the cells wrong-sign.
 TEST(FittedPatches, FallbackRoundThatSpreadsFailuresIsUndone) {
   auto field = makeAnalyticField("marschner-lobb");
   DenseGrid g = sampleField(*field, 32, field->name());
@@ -90,6 +92,7 @@ TEST(FittedPatches, FallbackRoundThatSpreadsFailuresIsUndone) {
   EXPECT_TRUE(stats.lastRoundUndone);
   EXPECT_EQ(stats.blendedVertices, 0u);
   EXPECT_GT(stats.unresolvedCells.size(), 0u);
+  EXPECT_LT(stats.unresolvedCells.size(), 60u);
   EXPECT_EQ(countSpuriousCells(m, *field, 8, 0.5), 0);
   // The undone round restored the normals: every one is the exact gradient at its isovertex.
   for (const IsoVertex& v : m.vertices) {
