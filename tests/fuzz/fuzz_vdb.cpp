@@ -1,6 +1,6 @@
 // libFuzzer target: the OpenVDB input path, cip's checks of the file's sizes and tree (vdb_tree_check.h) and
-// OpenVDB's parser behind them. OpenVDB's own errors must come out as cip::Error; a crash or a huge allocation
-// inside OpenVDB means a size the checks let through.
+// OpenVDB's parser behind them. OpenVDB's own errors must come out as cip::Error; a crash or a huge
+// allocation inside OpenVDB means a size the checks let through.
 #include "cip/error.h"
 #include "cip/volume_reader.h"
 #include "fuzz_input.h"
