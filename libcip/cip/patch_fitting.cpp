@@ -588,8 +588,7 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   const double dCentre = faceRestriction(fc, Vec2(0.5, 0.5)).sideBasis;
   den += kRidge * dCentre * dCentre * std::max(1, fitCount);
   const SignSamples samples{r.data(), cornerPart.data(), sideBasis.data(), n * n};
-  const int faceAxes[2] = {cube::otherAxes(cube::faceAxis(f))[0], cube::otherAxes(cube::faceAxis(f))[1]};
-  const LatticeLayout faceLayout(n, 2, faceAxes, ref.metric);
+  const LatticeLayout faceLayout(n, 2, cube::otherAxes(cube::faceAxis(f)).data(), ref.metric);
   const SignedCoefficient sc = solveSignConstraints(
       -num / den, samples,
       [&](int i) {
@@ -641,11 +640,14 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
     referenceFaceLattice<nf>(ref, f, r.data() + offset);
     patchFaceLattice<nf>(terms, f, value.data() + offset, basis.data() + offset);
   }
+  // Sample i >= kLattice: its open face (index into openFace) and its index on that face's lattice.
+  auto openSample = [&](int i) {
+    return std::array<int, 2>{(i - kLattice) / (nf * nf), (i - kLattice) % (nf * nf)};
+  };
   auto position = [&](int i) {
     if (i < kLattice) return lines.point(i);
-    const int j = (i - kLattice) % (nf * nf);
-    return faceLatticePoint<nf>(openFace[static_cast<std::size_t>((i - kLattice) / (nf * nf))], j % nf,
-                                j / nf);
+    const auto [face, j] = openSample(i);
+    return faceLatticePoint<nf>(openFace[static_cast<std::size_t>(face)], j % nf, j / nf);
   };
   // Least-squares fit to the reference surface points between lattice neighbours along the fit axis (linear
   // interpolation of the reference), where the patch is evaluated exactly.
@@ -680,9 +682,9 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
     if (i < kLattice) {
       g = lines.gradient(r.data(), i);
     } else {
-      const int j = (i - kLattice) % (nf * nf);
-      g = faceGradient(ref, openFace[static_cast<std::size_t>((i - kLattice) / (nf * nf))],
-                       latticeCoord(j % nf, nf), latticeCoord(j / nf, nf));
+      const auto [face, j] = openSample(i);
+      g = faceGradient(ref, openFace[static_cast<std::size_t>(face)], latticeCoord(j % nf, nf),
+                       latticeCoord(j / nf, nf));
     }
     return farFromSurface(ref, r[static_cast<std::size_t>(i)], g);
   };
@@ -693,9 +695,9 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
     if (i < kLattice) {
       near = neighbourCrosses(r.data(), i, cellLayout, kVerifiedVoxels);
     } else {
-      const int face = (i - kLattice) / (nf * nf);
+      const auto [face, j] = openSample(i);
       const auto uv = cube::otherAxes(cube::faceAxis(openFace[static_cast<std::size_t>(face)]));
-      near = neighbourCrosses(r.data() + kLattice + face * nf * nf, (i - kLattice) % (nf * nf),
+      near = neighbourCrosses(r.data() + kLattice + face * nf * nf, j,
                               LatticeLayout(nf, 2, uv.data(), ref.metric), kVerifiedVoxels);
     }
     return !near &&
