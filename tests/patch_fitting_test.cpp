@@ -12,6 +12,7 @@
 
 #include "cip/analytic_field.h"
 #include "cip/continuity_check.h"
+#include "cip/error.h"
 #include "cip/model_builder.h"
 #include "cip/model_file.h"
 #include "cip/surface_fidelity.h"
@@ -111,6 +112,27 @@ TEST(FittedPatches, SameModelForAnyThreadCount) {
     EXPECT_EQ(one, two) << toString(mode);
     EXPECT_EQ(one, all) << toString(mode);
   }
+}
+
+// fitModelPatches pairs the cells across each face by walking them in grid order, which the builder gives;
+// a model in another order is refused rather than fitted with unpaired faces.
+TEST(FittedPatches, CellsOutOfGridOrderAreRefused) {
+  auto field = makeAnalyticField("sphere");
+  DenseGrid g = sampleField(*field, 8, "sphere");
+  Model m = build(*field, g, NormalMode::Gradient, PatchMethod::Paper);
+  ASSERT_GT(m.cells.size(), 2u);
+  std::vector<CellLoops> loops;
+  for (std::size_t c = 0; c < m.cells.size(); ++c) loops.push_back(m.loops(c));
+  auto reference = [&](std::size_t c) {
+    const auto& i = m.cells[c].index;
+    return tricubicReference(g, {i[0], i[1], i[2]}, field->defaultIsovalue());
+  };
+  Model swapped = m;
+  std::swap(swapped.cells[0], swapped.cells[1]);
+  std::swap(loops[0], loops[1]);
+  EXPECT_THROW(fitModelPatches(swapped, loops, reference), Error);
+  std::swap(loops[0], loops[1]);
+  EXPECT_NO_THROW(fitModelPatches(m, loops, reference));
 }
 
 TEST(FittedPatches, ModelFileRoundTripKeepsMethod) {

@@ -379,7 +379,8 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
       // brick.
       const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
       FittingStats stats = fitModelPatches(model, cellLoops, [&](std::size_t c) {
-        auto gc = global.coords(cells[c].key);
+        const auto& index = model.cells[c].index;  // as global.coords(cells[c].key), without divisions
+        const std::array<std::int64_t, 3> gc{index[0], index[1], index[2]};
         CellReference ref;
         if (options.normals == NormalMode::Exact) {
           ref.field = options.exactField;

@@ -6,8 +6,8 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <iterator>
 #include <limits>
+#include <numeric>
 #include <optional>
 #include <vector>
 
@@ -531,7 +531,6 @@ void faceRestrictionLattice(const FaceCrossings& face, std::array<double, n * n>
 }
 
 struct FaceEntry {
-  std::uint64_t key = 0;
   std::array<std::uint32_t, 2> cell{};
   std::array<std::int8_t, 2> face{};
   int count = 0;
@@ -722,81 +721,57 @@ struct FaceTable {
   std::vector<std::array<std::int32_t, 6>> cellFaces;
 };
 
-/// The first cell of a face (lowest index) computes it. Every cell face f = 2 axis + side lists its grid
-/// faces by key; per axis, the cells' far faces (side 1) and near faces (side 0) merge into that axis's grid
-/// faces (a shared face meets its lower cell in the first list and its upper one in the second), and the axes
-/// merge into one table in key order. Cells come in raster order, so the lists are sorted already; they are
-/// sorted here only if not.
+/// The first cell of a face (lowest index) computes it. Faces are listed as the cells meet them in grid
+/// (raster) order: a cell's far face along an axis (side 1) is new, its near face (side 0) is the far face
+/// of the cell below if that cell has it. The cells below along an axis come in raster order too, so one
+/// cursor per axis finds them (fitModelPatches checks that the cells are in that order).
 FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops) {
   const std::size_t numCells = model.cells.size();
   const auto& dims = model.geometry.dims;
-  std::array<std::vector<FaceEntry>, 6> sides;
-  {
-    std::array<std::size_t, 6> count{};
-    for (const CellLoops& l : loops)
-      for (int f = 0; f < 6; ++f) count[static_cast<std::size_t>(f)] += (l.faceMask >> f) & 1;
-    for (int f = 0; f < 6; ++f)
-      sides[static_cast<std::size_t>(f)].reserve(count[static_cast<std::size_t>(f)]);
-  }
-  for (std::size_t c = 0; c < numCells; ++c) {
-    const ModelCell& cell = model.cells[c];
-    for (int f = 0; f < 6; ++f) {
-      if (!((loops[c].faceMask >> f) & 1)) continue;
-      std::array<std::uint64_t, 3> p{cell.index[0], cell.index[1], cell.index[2]};
-      p[cube::faceAxis(f)] += static_cast<std::uint64_t>(cube::faceSide(f));
-      FaceEntry e;
-      e.key =
-          ((p[2] * static_cast<std::uint64_t>(dims[1]) + p[1]) * static_cast<std::uint64_t>(dims[0]) + p[0]) *
-              3 +
-          static_cast<std::uint64_t>(cube::faceAxis(f));
-      e.cell[0] = static_cast<std::uint32_t>(c);
-      e.face[0] = static_cast<std::int8_t>(f);
-      e.count = 1;
-      sides[static_cast<std::size_t>(f)].push_back(e);
-    }
-  }
-  auto byKey = [](const FaceEntry& x, const FaceEntry& y) {
-    return x.key != y.key ? x.key < y.key : x.cell[0] < y.cell[0];
+  const std::array<std::uint64_t, 3> step{1, static_cast<std::uint64_t>(dims[0]),
+                                          static_cast<std::uint64_t>(dims[0] * dims[1])};
+  auto key = [&](std::size_t c) {
+    const auto& p = model.cells[c].index;
+    return p[0] * step[0] + p[1] * step[1] + p[2] * step[2];
   };
-  for (auto& list : sides)
-    if (!std::is_sorted(list.begin(), list.end(), byKey)) std::sort(list.begin(), list.end(), byKey);
-  std::array<std::vector<FaceEntry>, 3> axisFaces;
-  for (int axis = 0; axis < 3; ++axis) {
-    const auto& lower = sides[static_cast<std::size_t>(2 * axis + 1)];  // faces of the cells below them
-    const auto& upper = sides[static_cast<std::size_t>(2 * axis)];      // faces of the cells above them
-    auto& out = axisFaces[static_cast<std::size_t>(axis)];
-    out.reserve(std::max(lower.size(), upper.size()));
-    std::size_t i = 0, j = 0;
-    while (i < lower.size() || j < upper.size()) {
-      if (j == upper.size() || (i < lower.size() && lower[i].key < upper[j].key)) {
-        out.push_back(lower[i++]);
-      } else if (i == lower.size() || upper[j].key < lower[i].key) {
-        out.push_back(upper[j++]);
-      } else {
-        FaceEntry e = lower[i++];
-        e.cell[1] = upper[j].cell[0];
-        e.face[1] = upper[j++].face[0];
-        e.count = 2;
-        out.push_back(e);
-      }
-    }
-  }
-  for (auto& list : sides) std::vector<FaceEntry>().swap(list);
   FaceTable table;
   std::vector<FaceEntry>& faces = table.faces;
-  std::vector<FaceEntry> firstTwo;
-  firstTwo.reserve(axisFaces[0].size() + axisFaces[1].size());
-  faces.reserve(firstTwo.capacity() + axisFaces[2].size());
-  std::merge(axisFaces[0].begin(), axisFaces[0].end(), axisFaces[1].begin(), axisFaces[1].end(),
-             std::back_inserter(firstTwo), byKey);
-  std::merge(firstTwo.begin(), firstTwo.end(), axisFaces[2].begin(), axisFaces[2].end(),
-             std::back_inserter(faces), byKey);
   auto& cellFaces = table.cellFaces;
   cellFaces.resize(numCells);
   for (auto& cf : cellFaces) cf.fill(-1);
-  for (std::size_t i = 0; i < faces.size(); ++i)
-    for (int s = 0; s < faces[i].count; ++s)
-      cellFaces[faces[i].cell[s]][faces[i].face[s]] = static_cast<std::int32_t>(i);
+  std::size_t bounding = 0;
+  for (const CellLoops& l : loops) bounding += static_cast<std::size_t>(__builtin_popcount(l.faceMask));
+  faces.reserve(bounding / 2 + numCells);
+  std::array<std::size_t, 3> cursor{};
+  for (std::size_t c = 0; c < numCells; ++c) {
+    const std::uint64_t k = key(c);
+    for (int f = 0; f < 6; ++f) {
+      if (!((loops[c].faceMask >> f) & 1)) continue;
+      const int axis = cube::faceAxis(f);
+      if (cube::faceSide(f) == 0 && model.cells[c].index[axis] > 0) {
+        const std::uint64_t below = k - step[axis];
+        std::size_t& at = cursor[axis];
+        while (at < c && key(at) < below) ++at;
+        if (at < c && key(at) == below) {
+          const std::int32_t i = cellFaces[at][f + 1];
+          if (i >= 0) {
+            FaceEntry& e = faces[static_cast<std::size_t>(i)];
+            e.cell[1] = static_cast<std::uint32_t>(c);
+            e.face[1] = static_cast<std::int8_t>(f);
+            e.count = 2;
+            cellFaces[c][f] = i;
+            continue;
+          }
+        }
+      }
+      FaceEntry e;
+      e.cell[0] = static_cast<std::uint32_t>(c);
+      e.face[0] = static_cast<std::int8_t>(f);
+      e.count = 1;
+      cellFaces[c][f] = static_cast<std::int32_t>(faces.size());
+      faces.push_back(e);
+    }
+  }
   return table;
 }
 
@@ -808,6 +783,13 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
   if (loops.size() != numCells) throw Error("fitModelPatches: one CellLoops per cell expected");
   if (numCells == 0) return stats;
+  auto gridOrder = [&](const ModelCell& a, const ModelCell& b) {
+    return std::array<std::uint32_t, 3>{a.index[2], a.index[1], a.index[0]} <
+           std::array<std::uint32_t, 3>{b.index[2], b.index[1], b.index[0]};
+  };
+  for (std::size_t c = 1; c < numCells; ++c)
+    if (!gridOrder(model.cells[c - 1], model.cells[c]))
+      throw Error("fitModelPatches: cells must be in grid order (by z, y, x), each once");
   // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
   std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
   for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
