@@ -16,6 +16,7 @@
 #include "cip/patch_coefficients.h"
 #include "cip/sign_constraints.h"
 #include "cip/tricubic_reference.h"
+#include "cip/vector_clones.h"
 
 namespace cip {
 
@@ -53,8 +54,12 @@ constexpr double kRidge = 1e-3;
 template <int n>
 struct LatticeWeights {
   double w[n][4];
+  double byIndex[4][n];  ///< w transposed: weight of Hermite index k at lattice point i is byIndex[k][i]
   LatticeWeights() {
-    for (int i = 0; i < n; ++i) hermiteWeights(latticeCoord(i, n), w[i], nullptr);
+    for (int i = 0; i < n; ++i) {
+      hermiteWeights(latticeCoord(i, n), w[i], nullptr);
+      for (int k = 0; k < 4; ++k) byIndex[k][i] = w[i][k];
+    }
   }
   static const LatticeWeights& get() {
     static const LatticeWeights weights;
@@ -84,36 +89,57 @@ void analyticLattice(const CellReference& ref, const double* const coordinate[3]
       for (int a = 0; a < count[0]; ++a) out[a * stride[0] + b * stride[1] + d * stride[2]] -= ref.isovalue;
 }
 
-/// Reference values at the cell lattice (latticeCoord per axis; lattice point (a, b, d) over x, y, z at index
-/// a stride[0] + b stride[1] + d stride[2]). The tricubic interpolant is contracted one axis at a time (the
-/// weights are the same on every axis); an analytic reference is evaluated through valuesOnLattice.
+/// The tricubic interpolant (Hermite data `hermite` as in CellReference, minus `isovalue`) on the n^3
+/// lattice of latticeCoord points in line order: point i along axis L on line (p, q) of axes P, Q at index
+/// i + n (p + n q). Contracted one axis at a time, Q, P, then L, each pass over contiguous arrays so that it
+/// vectorises (the weights are the same on every axis).
 template <int n>
-void referenceCellLattice(const CellReference& ref, const std::array<int, 3>& stride, double* out) {
+CIP_VECTOR_CLONES void tricubicLatticeInLineOrder(const double* hermite, double isovalue, int L, int P, int Q,
+                                                  double* out) {
+  const auto& w = LatticeWeights<n>::get().w;
+  constexpr int stride[3] = {1, 4, 16};
+  double h[4][16];  // [Q index][L index + 4 P index]
+  for (int iQ = 0; iQ < 4; ++iQ)
+    for (int iP = 0; iP < 4; ++iP)
+      for (int iL = 0; iL < 4; ++iL)
+        h[iQ][iL + 4 * iP] = hermite[iL * stride[L] + iP * stride[P] + iQ * stride[Q]];
+  double alongQ[n][16];
+  for (int q = 0; q < n; ++q)
+    for (int k = 0; k < 16; ++k)
+      alongQ[q][k] = w[q][0] * h[0][k] + w[q][1] * h[1][k] + w[q][2] * h[2][k] + w[q][3] * h[3][k];
+  double alongP[n][n][4];
+  for (int q = 0; q < n; ++q)
+    for (int p = 0; p < n; ++p)
+      for (int iL = 0; iL < 4; ++iL)
+        alongP[q][p][iL] = w[p][0] * alongQ[q][iL] + w[p][1] * alongQ[q][iL + 4] +
+                           w[p][2] * alongQ[q][iL + 8] + w[p][3] * alongQ[q][iL + 12];
+  const auto& wt = LatticeWeights<n>::get().byIndex;
+  for (int q = 0; q < n; ++q)
+    for (int p = 0; p < n; ++p) {
+      const double* c = alongP[q][p];
+      double* line = out + n * (p + n * q);
+      for (int i = 0; i < n; ++i)
+        line[i] = wt[0][i] * c[0] + wt[1][i] * c[1] + wt[2][i] * c[2] + wt[3][i] * c[3] - isovalue;
+    }
+}
+
+/// Reference values at the cell lattice (latticeCoord per axis) in the line order of PatchLines along axis
+/// L (lattice point i along L on line (p, q) of the other axes at index i + n (p + n q)); an analytic
+/// reference is evaluated through valuesOnLattice.
+template <int n>
+void referenceCellLattice(const CellReference& ref, int L, double* out) {
+  const auto other = cube::otherAxes(L);
   if (ref.field) {
     const WorldLattice<n> world(ref);
     const double* coordinate[3] = {world.coordinate[0], world.coordinate[1], world.coordinate[2]};
+    std::array<int, 3> stride;
+    stride[L] = 1;
+    stride[other[0]] = n;
+    stride[other[1]] = n * n;
     analyticLattice(ref, coordinate, {n, n, n}, stride, out);
     return;
   }
-  const auto& w = LatticeWeights<n>::get().w;
-  double ax[n][16], bxy[n * n][4];
-  for (int a = 0; a < n; ++a)
-    for (int jk = 0; jk < 16; ++jk) {
-      const double* row = &ref.hermite[static_cast<std::size_t>(4 * jk)];
-      ax[a][jk] = w[a][0] * row[0] + w[a][1] * row[1] + w[a][2] * row[2] + w[a][3] * row[3];
-    }
-  for (int b = 0; b < n; ++b)
-    for (int a = 0; a < n; ++a)
-      for (int k = 0; k < 4; ++k)
-        bxy[a + n * b][k] = w[b][0] * ax[a][4 * k] + w[b][1] * ax[a][1 + 4 * k] + w[b][2] * ax[a][2 + 4 * k] +
-                            w[b][3] * ax[a][3 + 4 * k];
-  for (int d = 0; d < n; ++d)
-    for (int b = 0; b < n; ++b)
-      for (int a = 0; a < n; ++a) {
-        const double* h = bxy[a + n * b];
-        out[a * stride[0] + b * stride[1] + d * stride[2]] =
-            w[d][0] * h[0] + w[d][1] * h[1] + w[d][2] * h[2] + w[d][3] * h[3] - ref.isovalue;
-      }
+  tricubicLatticeInLineOrder<n>(ref.hermite.data(), ref.isovalue, L, other[0], other[1], out);
 }
 
 /// Cell-local position of lattice point (a, b) of face f (face frame: a along otherAxes[0], b along
@@ -127,6 +153,24 @@ Vec3 faceLatticePoint(int f, int a, int b) {
   x[uv[0]] = latticeCoord(a, n);
   x[uv[1]] = latticeCoord(b, n);
   return x;
+}
+
+/// The bicubic Hermite interpolant of face data `face` ([u index][v index], Hermite indices as in
+/// CellReference) minus `isovalue` on the n x n lattice of latticeCoord points (index a + n b): contracted
+/// along u, then v, each pass over contiguous arrays so that it vectorises.
+template <int n>
+CIP_VECTOR_CLONES void bicubicLattice(const double (&face)[4][4], double isovalue, double* value) {
+  const auto& w = LatticeWeights<n>::get().w;
+  const auto& wt = LatticeWeights<n>::get().byIndex;
+  double along[4][n];  // contracted along u, per v-Hermite index
+  for (int jb = 0; jb < 4; ++jb)
+    for (int a = 0; a < n; ++a)
+      along[jb][a] =
+          wt[0][a] * face[0][jb] + wt[1][a] * face[1][jb] + wt[2][a] * face[2][jb] + wt[3][a] * face[3][jb];
+  for (int b = 0; b < n; ++b)
+    for (int a = 0; a < n; ++a)
+      value[a + n * b] = w[b][0] * along[0][a] + w[b][1] * along[1][a] + w[b][2] * along[2][a] +
+                         w[b][3] * along[3][a] - isovalue;
 }
 
 /// Reference values minus the isovalue on face f at its lattice (index a + n b), from the in-plane Hermite
@@ -153,21 +197,11 @@ void referenceFaceLattice(const CellReference& ref, int f, double* value) {
   }
   constexpr int stride[3] = {1, 4, 16};
   const int su = stride[uv[0]], sv = stride[uv[1]], sn = stride[axis];
-  const auto& w = LatticeWeights<n>::get().w;
   double face[4][4];  // the face's Hermite data, [u index][v index]
   for (int ia = 0; ia < 4; ++ia)
     for (int jb = 0; jb < 4; ++jb)
       face[ia][jb] = ref.hermite[static_cast<std::size_t>(ia * su + jb * sv + 2 * side * sn)];
-  double along[4][n];  // contracted along u, per v-Hermite index
-  for (int jb = 0; jb < 4; ++jb)
-    for (int a = 0; a < n; ++a) {
-      along[jb][a] = 0;
-      for (int ia = 0; ia < 4; ++ia) along[jb][a] += w[a][ia] * face[ia][jb];
-    }
-  for (int b = 0; b < n; ++b)
-    for (int a = 0; a < n; ++a)
-      value[a + n * b] = w[b][0] * along[0][a] + w[b][1] * along[1][a] + w[b][2] * along[2][a] +
-                         w[b][3] * along[3][a] - ref.isovalue;
+  bicubicLattice<n>(face, ref.isovalue, value);
 }
 
 /// The reference gradient (per local unit) at point (u, v) of face f (face frame), as ref.gradient there but
@@ -323,8 +357,6 @@ class PatchLines {
 
   /// The cell lattice in line order: point i along the line axis on line (p, q) has index i + n (p + n q).
   static int index(int i, int p, int q) { return i + n * (p + n * q); }
-  /// Index steps of the lattice along x, y and z.
-  const std::array<int, 3>& strides() const { return stride_; }
   /// Cell-local position of lattice point `index`.
   Vec3 point(int index) const {
     Vec3 x;
@@ -630,7 +662,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   meanNormal.cwiseAbs().maxCoeff(&fitAxis);
   const LinearTerms terms(patch);
   const PatchLines<n> lines(terms, fitAxis);
-  referenceCellLattice<n>(ref, lines.strides(), r.data());
+  referenceCellLattice<n>(ref, fitAxis, r.data());
   lines.lattice(value.data(), basis.data());
   for (int f = 0; f < 6; ++f) {
     if ((patch.faceMask >> f) & 1) continue;
