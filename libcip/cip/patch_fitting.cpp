@@ -96,7 +96,9 @@ void analyticLattice(const CellReference& ref, const double* const coordinate[3]
 template <int n>
 CIP_VECTOR_CLONES void tricubicLatticeInLineOrder(const double* hermite, double isovalue, int L, int P, int Q,
                                                   double* out) {
-  const auto& w = LatticeWeights<n>::get().w;
+  // A local copy: `out` cannot alias it, so the passes stay vectorised.
+  const LatticeWeights<n> weights = LatticeWeights<n>::get();
+  const auto& w = weights.w;
   constexpr int stride[3] = {1, 4, 16};
   double h[4][16];  // [Q index][L index + 4 P index]
   for (int iQ = 0; iQ < 4; ++iQ)
@@ -113,7 +115,7 @@ CIP_VECTOR_CLONES void tricubicLatticeInLineOrder(const double* hermite, double 
       for (int iL = 0; iL < 4; ++iL)
         alongP[q][p][iL] = w[p][0] * alongQ[q][iL] + w[p][1] * alongQ[q][iL + 4] +
                            w[p][2] * alongQ[q][iL + 8] + w[p][3] * alongQ[q][iL + 12];
-  const auto& wt = LatticeWeights<n>::get().byIndex;
+  const auto& wt = weights.byIndex;
   for (int q = 0; q < n; ++q)
     for (int p = 0; p < n; ++p) {
       const double* c = alongP[q][p];
@@ -160,8 +162,9 @@ Vec3 faceLatticePoint(int f, int a, int b) {
 /// along u, then v, each pass over contiguous arrays so that it vectorises.
 template <int n>
 CIP_VECTOR_CLONES void bicubicLattice(const double (&face)[4][4], double isovalue, double* value) {
-  const auto& w = LatticeWeights<n>::get().w;
-  const auto& wt = LatticeWeights<n>::get().byIndex;
+  const LatticeWeights<n> weights = LatticeWeights<n>::get();  // a local copy, as above
+  const auto& w = weights.w;
+  const auto& wt = weights.byIndex;
   double along[4][n];  // contracted along u, per v-Hermite index
   for (int jb = 0; jb < 4; ++jb)
     for (int a = 0; a < n; ++a)
@@ -528,36 +531,42 @@ bool neighbourCrosses(const double* r, int index, const LatticeLayout& lattice, 
 /// faceRestriction at the face lattice (index a + n b), by separable products: the perpendicular planes of
 /// canonical edges 0, 1 depend on v only (v, 1 - v), those of edges 2, 3 on u only (u, 1 - u).
 template <int n>
-void faceRestrictionLattice(const FaceCrossings& face, std::array<double, n * n>& cornerPart,
-                            std::array<double, n * n>& sideBasis) {
-  // along[k][i]: product of the squared perpendicular planes of the crossed edges other than k (k = 4: all of
-  // them) among those depending on the same coordinate, at lattice coordinate i; u-dependent for u, else v.
-  double uProduct[5][n], vProduct[5][n];
+CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face,
+                                              std::array<double, n * n>& cornerPart,
+                                              std::array<double, n * n>& sideBasis) {
+  // The squared perpendicular plane of canonical edge j at lattice coordinate i, and per edge set the
+  // products of those of its u-dependent and its v-dependent edges.
+  double t[n], square[4][n];
   for (int i = 0; i < n; ++i) {
-    const double t = latticeCoord(i, n);
-    const double square[4] = {t * t, (1 - t) * (1 - t), t * t, (1 - t) * (1 - t)};
-    for (int k = 0; k < 5; ++k) {
-      uProduct[k][i] = vProduct[k][i] = 1;
-      for (int j = 0; j < 4; ++j) {
-        if (j == k || !((face.crossed >> j) & 1)) continue;
-        (j < 2 ? vProduct : uProduct)[k][i] *= square[j];
-      }
-    }
+    t[i] = latticeCoord(i, n);
+    square[0][i] = square[2][i] = t[i] * t[i];
+    square[1][i] = square[3][i] = (1 - t[i]) * (1 - t[i]);
   }
+  auto products = [&](unsigned edges, double* u, double* v) {
+    for (int i = 0; i < n; ++i) {
+      double pu = 1, pv = 1;
+      for (int j = 0; j < 4; ++j)
+        if ((edges >> j) & 1) (j < 2 ? pv : pu) *= square[j][i];
+      u[i] = pu;
+      v[i] = pv;
+    }
+  };
+  double u[n], v[n];
+  products(face.crossed, u, v);
   for (int b = 0; b < n; ++b)
     for (int a = 0; a < n; ++a) {
-      sideBasis[static_cast<std::size_t>(a + n * b)] = uProduct[4][a] * vProduct[4][b];
+      sideBasis[static_cast<std::size_t>(a + n * b)] = u[a] * v[b];
       cornerPart[static_cast<std::size_t>(a + n * b)] = 0;
     }
   for (int k = 0; k < 4; ++k) {
     if (!((face.crossed >> k) & 1)) continue;
+    products(face.crossed & ~(1u << k), u, v);
     const Vec2 normal = face.weight[k] * face.normal[k];
-    const double offset = -normal.dot(face.point[k]);
+    const double nu = normal.x(), nv = normal.y(), offset = -normal.dot(face.point[k]);
     for (int b = 0; b < n; ++b) {
-      const double v = latticeCoord(b, n), across = vProduct[k][b];
-      for (int a = 0; a < n; ++a)
-        cornerPart[static_cast<std::size_t>(a + n * b)] +=
-            (normal.x() * latticeCoord(a, n) + normal.y() * v + offset) * uProduct[k][a] * across;
+      const double along = nv * t[b], across = v[b];
+      double* row = cornerPart.data() + n * b;
+      for (int a = 0; a < n; ++a) row[a] += (nu * t[a] + along + offset) * u[a] * across;
     }
   }
 }
@@ -854,14 +863,16 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   std::vector<std::uint32_t> vertexCellStart, vertexCells;  // cells of each isovertex (built for round 1)
   std::vector<CellReference> blockReference(std::min(numCells, kBlockCells));
   // Cells without a sign-correct central coefficient or with a face without a sign-correct side coefficient.
+  // Failures are few: the flags are scanned, not every cell's faces.
   auto unresolvedCells = [&] {
     std::vector<std::uint32_t> out;
-    for (std::size_t c = 0; c < numCells; ++c) {
-      bool bad = !cellOk[c];
-      for (int f = 0; f < 6 && !bad; ++f)
-        bad = cellFaces[c][f] >= 0 && !faceOk[static_cast<std::size_t>(cellFaces[c][f])];
-      if (bad) out.push_back(static_cast<std::uint32_t>(c));
-    }
+    for (std::size_t c = 0; c < numCells; ++c)
+      if (!cellOk[c]) out.push_back(static_cast<std::uint32_t>(c));
+    for (std::size_t i = 0; i < faces.size(); ++i)
+      if (!faceOk[i])
+        for (int s = 0; s < faces[i].count; ++s) out.push_back(faces[i].cell[s]);
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
     return out;
   };
   // Whether one of `cells` gets sign-correct side coefficients on all its faces and a sign-correct central
