@@ -6,6 +6,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -40,6 +42,51 @@ RandomSamples randomSamples(std::mt19937& rng, int count, double nearFraction) {
 }
 
 }  // namespace
+
+// The vectorised sweep marks exactly the samples whose scalar slack is negative or NaN, including zeros of
+// either sign, NaN and infinite values, a below the smallest normal double, and counts that leave a tail
+// after the vector lanes and span several words.
+TEST(SignConstraints, SweepBitsAreTheScalarSlackTest) {
+  std::mt19937 rng(7);
+  const double special[] = {0.0,
+                            -0.0,
+                            1.0,
+                            -1.0,
+                            std::numeric_limits<double>::quiet_NaN(),
+                            std::numeric_limits<double>::infinity(),
+                            -std::numeric_limits<double>::infinity(),
+                            std::numeric_limits<double>::denorm_min(),
+                            -std::numeric_limits<double>::min(),
+                            1e300};
+  std::uniform_int_distribution<int> pick(0, 9), coin(0, 2);
+  std::uniform_real_distribution<double> u(-1, 1);
+  auto value = [&] { return coin(rng) == 0 ? special[pick(rng)] : u(rng); };
+  for (int count : {0, 1, 3, 63, 64, 65, 130, 259}) {
+    for (int trial = 0; trial < 20; ++trial) {
+      std::vector<double> r(count), a(count), b(count);
+      for (int i = 0; i < count; ++i) {
+        r[i] = value();
+        a[i] = value();
+        b[i] = std::abs(value());
+      }
+      const double w = trial % 5 == 0 ? special[pick(rng)] : 3 * u(rng);
+      const SignSamples s{r.data(), a.data(), b.data(), count};
+      std::vector<std::uint64_t> bits((count + 63) / 64, ~std::uint64_t{0});
+      const int failures = slackSweep(s, w, bits.data());
+      int expected = 0;
+      for (int i = 0; i < count; ++i) {
+        const bool fails = !(CoefficientInterval::slack(r[i] > 0, a[i], b[i], w) >= 0);
+        expected += fails;
+        ASSERT_EQ(fails, ((bits[i / 64] >> (i % 64)) & 1) != 0)
+            << "count " << count << " sample " << i << ": r " << r[i] << " a " << a[i] << " b " << b[i]
+            << " w " << w;
+      }
+      for (int i = count; i < 64 * static_cast<int>(bits.size()); ++i)
+        ASSERT_EQ((bits[i / 64] >> (i % 64)) & 1, 0u);
+      EXPECT_EQ(failures, expected);
+    }
+  }
+}
 
 TEST(SignConstraints, SameAsClampingIntoTheWholeInterval) {
   std::mt19937 rng(7);

@@ -1,26 +1,108 @@
 #include "cip/sign_constraints.h"
 
 #include <algorithm>
+#include <limits>
 #include <utility>
 
-#include "cip/vector_clones.h"
+#if defined(__SSE2__) || defined(__x86_64__)
+#include <immintrin.h>
+#endif
 
 namespace cip {
 
-CIP_VECTOR_CLONES int slackSweep(const SignSamples& s, double w, double* slack) {
-  // Failures are counted in doubles (which keeps the loop vectorisable) in four sums, so that the additions
-  // do not wait on one another.
-  auto failure = [&](int i) {
-    slack[i] = CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], w);
-    return slack[i] >= 0 ? 0.0 : 1.0;
-  };
-  double failures[4] = {0, 0, 0, 0};
-  int i = 0;
-  for (; i + 4 <= s.count; i += 4)
-    for (int j = 0; j < 4; ++j) failures[j] += failure(i + j);
-  double total = failures[0] + failures[1] + failures[2] + failures[3];
-  for (; i < s.count; ++i) total += failure(i);
-  return static_cast<int>(total);
+namespace {
+
+/// Failure bits of one sample, as CoefficientInterval::slack decides (the fallback and the tail).
+std::uint64_t fails(const SignSamples& s, int i, double w) {
+  return !(CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], w) >= 0);
+}
+
+/// The samples from `begin` on whose bits the vector loops did not set (at most one word's worth).
+std::uint64_t tailBits(const SignSamples& s, int begin, int end, double w) {
+  std::uint64_t bits = 0;
+  for (int i = begin; i < end; ++i) bits |= fails(s, i, w) << (i % 64);
+  return bits;
+}
+
+#if defined(__SSE2__)
+// CoefficientInterval::slack lane-wise: v = a + w b, negated where r > 0 does not hold (NaN included), minus
+// max(kEps |a|, DBL_MIN) (maxpd gives its second operand for a NaN, as the scalar comparison does); a lane
+// fails unless the result is >= 0 (NaN fails).
+int sweepSse2(const SignSamples& s, double w, std::uint64_t* failing) {
+  const __m128d ww = _mm_set1_pd(w), zero = _mm_setzero_pd(), signBit = _mm_set1_pd(-0.0),
+                eps = _mm_set1_pd(CoefficientInterval::kEps),
+                tiny = _mm_set1_pd(std::numeric_limits<double>::min());
+  int failures = 0;
+  for (int base = 0; base < s.count; base += 64) {
+    const int end = std::min(s.count, base + 64);
+    std::uint64_t bits = 0;
+    int i = base;
+    for (; i + 2 <= end; i += 2) {
+      const __m128d r = _mm_loadu_pd(s.r + i), a = _mm_loadu_pd(s.a + i), b = _mm_loadu_pd(s.b + i);
+      const __m128d v = _mm_add_pd(a, _mm_mul_pd(ww, b));
+      const __m128d flip = _mm_andnot_pd(_mm_cmpgt_pd(r, zero), signBit);
+      const __m128d needed = _mm_max_pd(_mm_mul_pd(eps, _mm_andnot_pd(signBit, a)), tiny);
+      const __m128d slack = _mm_sub_pd(_mm_xor_pd(v, flip), needed);
+      const int pass = _mm_movemask_pd(_mm_cmpge_pd(slack, zero));
+      bits |= static_cast<std::uint64_t>(pass ^ 3) << (i - base);
+    }
+    bits |= tailBits(s, i, end, w);
+    failing[base / 64] = bits;
+    failures += __builtin_popcountll(bits);
+  }
+  return failures;
+}
+#endif
+
+#if defined(__x86_64__) && defined(__has_attribute)
+#if __has_attribute(target)
+#define CIP_SWEEP_AVX2 1
+// As sweepSse2, four lanes at a time.
+__attribute__((target("avx2"))) int sweepAvx2(const SignSamples& s, double w, std::uint64_t* failing) {
+  const __m256d ww = _mm256_set1_pd(w), zero = _mm256_setzero_pd(), signBit = _mm256_set1_pd(-0.0),
+                eps = _mm256_set1_pd(CoefficientInterval::kEps),
+                tiny = _mm256_set1_pd(std::numeric_limits<double>::min());
+  int failures = 0;
+  for (int base = 0; base < s.count; base += 64) {
+    const int end = std::min(s.count, base + 64);
+    std::uint64_t bits = 0;
+    int i = base;
+    for (; i + 4 <= end; i += 4) {
+      const __m256d r = _mm256_loadu_pd(s.r + i), a = _mm256_loadu_pd(s.a + i), b = _mm256_loadu_pd(s.b + i);
+      const __m256d v = _mm256_add_pd(a, _mm256_mul_pd(ww, b));
+      const __m256d flip = _mm256_andnot_pd(_mm256_cmp_pd(r, zero, _CMP_GT_OQ), signBit);
+      const __m256d needed = _mm256_max_pd(_mm256_mul_pd(eps, _mm256_andnot_pd(signBit, a)), tiny);
+      const __m256d slack = _mm256_sub_pd(_mm256_xor_pd(v, flip), needed);
+      const int pass = _mm256_movemask_pd(_mm256_cmp_pd(slack, zero, _CMP_GE_OQ));
+      bits |= static_cast<std::uint64_t>(pass ^ 15) << (i - base);
+    }
+    bits |= tailBits(s, i, end, w);
+    failing[base / 64] = bits;
+    failures += __builtin_popcountll(bits);
+  }
+  return failures;
+}
+#endif
+#endif
+
+}  // namespace
+
+int slackSweep(const SignSamples& s, double w, std::uint64_t* failing) {
+#if defined(CIP_SWEEP_AVX2)
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  if (avx2) return sweepAvx2(s, w, failing);
+#endif
+#if defined(__SSE2__)
+  return sweepSse2(s, w, failing);
+#else
+  int failures = 0;
+  for (int base = 0; base < s.count; base += 64) {
+    const std::uint64_t bits = tailBits(s, base, std::min(s.count, base + 64), w);
+    failing[base / 64] = bits;
+    failures += __builtin_popcountll(bits);
+  }
+  return failures;
+#endif
 }
 
 int signViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double w) {

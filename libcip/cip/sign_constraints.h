@@ -77,10 +77,13 @@ struct SignSamples {
   int count;
 };
 
-/// Writes CoefficientInterval::slack(r_i > 0, a_i, b_i, w) of every sample to `slack` and returns how many
-/// are negative (or NaN). The hot loop of solveSignConstraints: vectorised, with an AVX2 variant chosen at
-/// run time where the processor has it (same arithmetic: no fused multiply-add).
-int slackSweep(const SignSamples& s, double w, double* slack);
+/// The samples that w fails: sets bit i % 64 of failing[i / 64] for every sample i whose
+/// CoefficientInterval::slack(r_i > 0, a_i, b_i, w) is negative (or NaN), clears the other bits of the
+/// (s.count + 63) / 64 words, and returns how many bits are set. The hot loop of solveSignConstraints:
+/// two or four samples at a time (SSE2, or AVX2 where the processor has it; the same arithmetic, no fused
+/// multiply-add), their failures taken as bits from the comparison, so that the samples that pass cost no
+/// branch.
+int slackSweep(const SignSamples& s, double w, std::uint64_t* failing);
 
 /// Clamps the fitted coefficient `w` into the interval of the samples that count:
 ///  - `far(i)`: sample i lies farther than the margin from the reference surface (a first-order estimate); it
@@ -93,30 +96,32 @@ SignedCoefficient solveSignConstraints(double w, const SignSamples& s, Far&& far
   // Per sample: 0 unclassified, 1 counting (added), 2 near, 3 near and confirmed near.
   enum : std::uint8_t { kUnknown, kCounting, kNear, kConfirmedNear };
   thread_local std::vector<std::uint8_t> state;
-  thread_local std::vector<double> slack;
+  thread_local std::vector<std::uint64_t> failing;
+  const std::size_t words = (static_cast<std::size_t>(s.count) + 63) / 64;
   state.assign(static_cast<std::size_t>(s.count), kUnknown);
-  slack.resize(static_cast<std::size_t>(s.count));
+  failing.resize(words);
   CoefficientInterval interval;
   if (!std::isfinite(w)) w = 0;
   double value = w;
   for (;;) {
-    // The sweep over all samples is branch-free; failures are rare and examined below.
-    double* out = slack.data();
-    if (slackSweep(s, value, out) == 0) break;
+    // The sweep over all samples is branch-free; failures are rare and examined below, in index order.
+    if (slackSweep(s, value, failing.data()) == 0) break;
     bool added = false;
-    for (int i = 0; i < s.count; ++i) {
-      const auto k = static_cast<std::size_t>(i);
-      if (out[i] >= 0 || state[k] == kCounting || state[k] == kConfirmedNear) continue;
-      if (state[k] == kUnknown) state[k] = far(i) ? kCounting : kNear;
-      if (state[k] == kNear) {
-        const double v = s.a[i] + value * s.b[i];
-        if ((v > 0) == (s.r[i] > 0) || v == 0) continue;
-        state[k] = confirmFar(i) ? kCounting : kConfirmedNear;
+    for (std::size_t word = 0; word < words; ++word)
+      for (std::uint64_t bits = failing[word]; bits; bits &= bits - 1) {
+        const int i = static_cast<int>(64 * word) + __builtin_ctzll(bits);
+        const auto k = static_cast<std::size_t>(i);
+        if (state[k] == kCounting || state[k] == kConfirmedNear) continue;
+        if (state[k] == kUnknown) state[k] = far(i) ? kCounting : kNear;
+        if (state[k] == kNear) {
+          const double v = s.a[i] + value * s.b[i];
+          if ((v > 0) == (s.r[i] > 0) || v == 0) continue;
+          state[k] = confirmFar(i) ? kCounting : kConfirmedNear;
+        }
+        if (state[k] != kCounting) continue;
+        interval.add(s.r[i] > 0, s.a[i], s.b[i]);
+        added = true;
       }
-      if (state[k] != kCounting) continue;
-      interval.add(s.r[i] > 0, s.a[i], s.b[i]);
-      added = true;
-    }
     if (!added || !interval.feasible()) break;
     value = interval.clamp(w);
   }
