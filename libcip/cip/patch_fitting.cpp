@@ -247,6 +247,12 @@ bool farFromSurface(const CellReference& ref, double r, const Vec3& gradient) {
   return r * r > kMarginVoxels * kMarginVoxels * gradient.cwiseProduct(ref.metric).squaredNorm();
 }
 
+/// A product of squared bounding planes at the centre of the face or cell, one for each bit of `planes`:
+/// every plane is 1/2 there, so the product is 4^-(bits), exactly.
+double centreSquares(unsigned planes) {
+  return std::ldexp(1.0, -2 * __builtin_popcount(planes));
+}
+
 /// The two bits of a squared-face mask (bit 2a: plane x_a = 0, bit 2a + 1: plane x_a = 1) that concern axis
 /// a.
 int pattern(std::uint8_t mask, int axis) {
@@ -625,7 +631,7 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   // Ridge term towards 0 at the scale of the side basis at the face centre: where every fit point has a tiny
   // side basis (a face curve hugging a face vertex) w hardly moves the face curve but would still weigh on
   // the interior.
-  const double dCentre = faceRestriction(fc, Vec2(0.5, 0.5)).sideBasis;
+  const double dCentre = centreSquares(fc.crossed);  // faceRestriction(fc, (0.5, 0.5)).sideBasis
   den += kRidge * dCentre * dCentre * std::max(1, fitCount);
   const SignSamples samples{r.data(), cornerPart.data(), sideBasis.data(), n * n};
   const LatticeLayout faceLayout(n, 2, cube::otherAxes(cube::faceAxis(f)).data(), ref.metric);
@@ -711,7 +717,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
         ++fitCount;
       }
     }
-  const double cCentre = patch.centralBasis(Vec3(0.5, 0.5, 0.5));
+  const double cCentre = centreSquares(patch.faceMask);  // patch.centralBasis((0.5, 0.5, 0.5))
   den += kRidge * cCentre * cCentre * std::max(1, fitCount);
   // Samples within the margin by the first-order estimate are left free, but where the clamped coefficient
   // gives one of them the wrong sign, the estimate is checked by Newton steps on the reference; a sample that
