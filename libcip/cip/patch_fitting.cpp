@@ -45,8 +45,10 @@ constexpr double latticeCoord(int i, int n) {
 /// the patch gives them the wrong sign and Newton steps on the reference do not reach its surface within this
 /// many voxels (the margin of countSpuriousCells is 0.5).
 constexpr double kVerifiedVoxels = 0.3;
-/// Cells per block of the fitting rounds (references kept for one block at a time).
-constexpr std::size_t kBlockCells = 4096;
+/// Cells per block of the fitting rounds (references kept for one block at a time). A block's references
+/// (about 300 KB) then stay in cache from its face fits to its cell fits: against 4096, gyroid at N = 32 fits
+/// about 4 % faster.
+constexpr std::size_t kBlockCells = 512;
 /// Weight of the ridge term of the coefficient fits (relative to a fit point at the cell or face centre).
 constexpr double kRidge = 1e-3;
 
@@ -837,17 +839,21 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   for (std::size_t c = 1; c < numCells; ++c)
     if (!gridOrder(model.cells[c - 1], model.cells[c]))
       throw Error("fitModelPatches: cells must be in grid order (by z, y, x), each once");
-  // Edge direction (towards the positive vertex) and gradient normal of every isovertex.
-  std::vector<Vec3> baseNormal(numVertices), edgeDirection(numVertices, Vec3::UnitX());
+  // Gradient normal and edge axis of every isovertex (a byte each: most cells write each of theirs).
+  std::vector<Vec3> baseNormal(numVertices);
+  std::vector<std::uint8_t> edgeAxis(numVertices, 0);
   for (std::size_t v = 0; v < numVertices; ++v) baseNormal[v] = model.vertices[v].normal;
   for (std::size_t c = 0; c < numCells; ++c) {
     const ModelCell& cell = model.cells[c];
-    for (int k = 0; k < cell.numCorners(); ++k) {
-      std::uint32_t v = model.corners[cell.firstCorner + k];
-      int axis = cube::edgeAxis(loops[c].edges[k]);
-      edgeDirection[v] = Vec3::Unit(axis) * (baseNormal[v][axis] >= 0 ? 1.0 : -1.0);
-    }
+    for (int k = 0; k < cell.numCorners(); ++k)
+      edgeAxis[model.corners[cell.firstCorner + k]] =
+          static_cast<std::uint8_t>(cube::edgeAxis(loops[c].edges[k]));
   }
+  // The edge direction of an isovertex, towards the positive vertex.
+  auto edgeDirection = [&](std::size_t v) {
+    const int axis = edgeAxis[v];
+    return Vec3(Vec3::Unit(axis) * (baseNormal[v][axis] >= 0 ? 1.0 : -1.0));
+  };
   FaceTable table = buildFaceTable(model, loops);
   const std::vector<FaceEntry>& faces = table.faces;
   const std::vector<std::array<std::int32_t, 6>>& cellFaces = table.cellFaces;
@@ -934,8 +940,9 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     }
     auto setNormal = [&](std::size_t v) {
       double beta = kBlend[level[v]];
-      Vec3 n = (1 - beta) * baseNormal[v] + beta * edgeDirection[v];
-      model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edgeDirection[v];
+      const Vec3 edge = edgeDirection(v);
+      Vec3 n = (1 - beta) * baseNormal[v] + beta * edge;
+      model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edge;
     };
     if (round == 0)
       tbb::parallel_for(std::size_t(0), numVertices, setNormal);
