@@ -768,6 +768,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
 struct FaceTable {
   std::vector<FaceEntry> faces;
   std::vector<std::array<std::int32_t, 6>> cellFaces;
+  std::vector<std::uint8_t> ownedFaces;  ///< per cell, bit f: the cell is its face f's first cell
 };
 
 /// The first cell of a face (lowest index) computes it. Faces are listed as the cells meet them in grid
@@ -786,6 +787,7 @@ FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops
   FaceTable table;
   std::vector<FaceEntry>& faces = table.faces;
   auto& cellFaces = table.cellFaces;
+  table.ownedFaces.assign(numCells, 0);
   cellFaces.resize(numCells);
   for (auto& cf : cellFaces) cf.fill(-1);
   std::size_t bounding = 0;
@@ -818,6 +820,7 @@ FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops
       e.face[0] = static_cast<std::int8_t>(f);
       e.count = 1;
       cellFaces[c][f] = static_cast<std::int32_t>(faces.size());
+      table.ownedFaces[c] = static_cast<std::uint8_t>(table.ownedFaces[c] | (1u << f));
       faces.push_back(e);
     }
   }
@@ -863,10 +866,9 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   std::vector<std::uint8_t> faceOk(faces.size(), 1), cellOk(numCells, 1);
   std::vector<double> faceCoefficient(faces.size(), 0.0);
   auto cellVertex = [&](std::size_t c, int k) { return model.corners[model.cells[c].firstCorner + k]; };
+  const std::vector<std::uint8_t>& ownedFaces = table.ownedFaces;
   auto ownedDirtyFace = [&](std::size_t c, int f) {
-    const std::int32_t i = cellFaces[c][f];
-    return i >= 0 && faces[static_cast<std::size_t>(i)].cell[0] == c &&
-           faceDirty[static_cast<std::size_t>(i)];
+    return ((ownedFaces[c] >> f) & 1) && faceDirty[static_cast<std::size_t>(cellFaces[c][f])];
   };
   // The round's cells, ascending: all of them first, then the cells of the faces touched by an isovertex
   // whose blend level changed (a dirty face's cells are both dirty, so its first cell fits it).
