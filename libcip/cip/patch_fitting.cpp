@@ -273,11 +273,11 @@ double squares(int m, double t) {
 /// corner term's factor is its corner plane, a side term's the constant 1 (normal 0, offset 1). Listed once
 /// per cell for all its lattices.
 struct LinearTerms {
-  struct Term {
-    double coefficient = 0;
-    Vec3 normal = Vec3::Zero();
-    double offset = 0;
-    std::uint8_t mask = 0;
+  struct Term {  // every member is set where a term is listed (no default values: the array is not cleared)
+    double coefficient;
+    Vec3 normal;
+    double offset;
+    std::uint8_t mask;
   };
   std::array<Term, CornerPatch::kMaxTerms> term;
   int count = 0;
@@ -296,6 +296,7 @@ struct LinearTerms {
         out.normal = patch.normal[t.corner];
         out.offset = -patch.normal[t.corner].dot(patch.point[t.corner]);
       } else {
+        out.normal = Vec3::Zero();
         out.offset = 1;
       }
     }
