@@ -123,9 +123,9 @@ TEST(FittedPatches, CellsOutOfGridOrderAreRefused) {
   ASSERT_GT(m.cells.size(), 2u);
   std::vector<CellLoops> loops;
   for (std::size_t c = 0; c < m.cells.size(); ++c) loops.push_back(m.loops(c));
-  auto reference = [&](std::size_t c) {
+  auto reference = [&](std::size_t c, CellReference& ref) {
     const auto& i = m.cells[c].index;
-    return tricubicReference(g, {i[0], i[1], i[2]}, field->defaultIsovalue());
+    ref = tricubicReference(g, {i[0], i[1], i[2]}, field->defaultIsovalue());
   };
   Model swapped = m;
   std::swap(swapped.cells[0], swapped.cells[1]);

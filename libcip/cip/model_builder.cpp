@@ -378,11 +378,11 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
       // Reference: the analytic field in exact mode, else the monotone tricubic interpolant of the cell's
       // brick.
       const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
-      FittingStats stats = fitModelPatches(model, cellLoops, [&](std::size_t c) {
+      FittingStats stats = fitModelPatches(model, cellLoops, [&](std::size_t c, CellReference& ref) {
         const auto& index = model.cells[c].index;  // as global.coords(cells[c].key), without divisions
         const std::array<std::int64_t, 3> gc{index[0], index[1], index[2]};
-        CellReference ref;
         if (options.normals == NormalMode::Exact) {
+          ref = CellReference();
           ref.field = options.exactField;
           ref.geometry = &model.geometry;
           ref.origin =
@@ -390,11 +390,10 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
           ref.isovalue = iso;
         } else {
           const GridBrick& b = bricks[cells[c].brick];
-          ref = tricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]},
-                                  iso);
+          setTricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]}, iso,
+                               ref);
         }
         ref.metric = metric;
-        return ref;
       });
       if (options.fittingStats) *options.fittingStats = stats;
     }

@@ -831,7 +831,7 @@ FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops
 }  // namespace
 
 FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
-                             const std::function<CellReference(std::size_t)>& reference) {
+                             const std::function<void(std::size_t, CellReference&)>& reference) {
   FittingStats stats;
   const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
   if (loops.size() != numCells) throw Error("fitModelPatches: one CellLoops per cell expected");
@@ -899,16 +899,17 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
       if (found.load(std::memory_order_relaxed)) return;
       const std::size_t c = cells[j];
       CornerPatch patch = model.patch(c, loops[c]);
-      const CellReference ref = reference(c);
+      CellReference ref, firstRef;
+      reference(c, ref);
       for (int f = 0; f < 6; ++f) {
         const std::int32_t i = cellFaces[c][f];
         if (i < 0) continue;
         const FaceEntry& face = faces[static_cast<std::size_t>(i)];
         const std::size_t first = face.cell[0];
-        const FaceResult fr = first == c
-                                  ? fitFace(patch, model.cells[c].pairing03, face.face[0], ref)
-                                  : fitFace(model.patch(first, loops[first]), model.cells[first].pairing03,
-                                            face.face[0], reference(first));
+        if (first != c) reference(first, firstRef);
+        const FaceResult fr = first == c ? fitFace(patch, model.cells[c].pairing03, face.face[0], ref)
+                                         : fitFace(model.patch(first, loops[first]),
+                                                   model.cells[first].pairing03, face.face[0], firstRef);
         if (!fr.ok) return;
         patch.faceCoefficient[static_cast<std::size_t>(f)] = fr.coefficient;
       }
@@ -961,7 +962,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                           for (std::size_t j = r.begin(); j != r.end(); ++j) {
                             const std::size_t c = dirtyCells[j];
                             CellReference& ref = blockReference[j - b0];
-                            ref = reference(c);
+                            reference(c, ref);
                             std::optional<CornerPatch> patch;
                             for (int f = 0; f < 6; ++f) {
                               if (!ownedDirtyFace(c, f)) continue;
@@ -1103,7 +1104,9 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   tbb::parallel_for(std::size_t(0), infeasible.size(), [&](std::size_t j) {
     const std::size_t c = infeasible[j];
     model.cells[c].central = 0;
-    model.cells[c].central = fitCell(model.patch(c, loops[c]), reference(c), true).central;
+    CellReference ref;
+    reference(c, ref);
+    model.cells[c].central = fitCell(model.patch(c, loops[c]), ref, true).central;
   });
   for (std::size_t v = 0; v < numVertices; ++v) {
     stats.blendedVertices += level[v] > 0;

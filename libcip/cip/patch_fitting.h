@@ -50,10 +50,11 @@ struct FittingStats {
 
 /// Replaces the side and central coefficients and the corner-plane normals of a model built with the paper's
 /// construction (loops, pairings and isovertex positions are kept). `loops[c]` are the loops of cell c
-/// (model.loops(c); the builder has them already). `reference(c)` returns the reference of cell c; it is
-/// called concurrently. Runs in the caller's TBB arena. The cells must be in grid order (by z, then y, then
-/// x, each once), as the builder makes them; otherwise throws cip::Error.
+/// (model.loops(c); the builder has them already). `reference(c, ref)` sets `ref` to the reference of cell c
+/// (the fitting keeps a block of them in place); it is called concurrently. Runs in the caller's TBB arena.
+/// The cells must be in grid order (by z, then y, then x, each once), as the builder makes them; otherwise
+/// throws cip::Error.
 FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
-                             const std::function<CellReference(std::size_t)>& reference);
+                             const std::function<void(std::size_t, CellReference&)>& reference);
 
 }  // namespace cip

@@ -191,10 +191,19 @@ double CellReference::valueAndGradient(const Vec3& local, Vec3& gradient) const 
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                                 double isovalue) {
   CellReference ref;
+  setTricubicReference(grid, cell, isovalue, ref);
+  return ref;
+}
+
+void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell, double isovalue,
+                          CellReference& ref) {
+  ref.field = nullptr;
+  ref.geometry = nullptr;
+  ref.origin = Vec3::Zero();
   ref.isovalue = isovalue;
+  ref.metric = Vec3::Ones();
   sampleBlock(grid, cell, ref.hermite);
   samplesToHermite(ref.hermite);
-  return ref;
 }
 
 CellReference TricubicInterpolant::at(const Vec3& world, Vec3& local) const {

@@ -57,6 +57,10 @@ struct CellReference {
 /// point one step outside the grid is extrapolated linearly along that axis (linear fields stay exact).
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                                 double isovalue);
+/// tricubicReference written into `ref` (every member set; metric to ones), which spares copying its Hermite
+/// data where references are kept in an array.
+void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell, double isovalue,
+                          CellReference& ref);
 
 /// The reference interpolant of a dense grid as a field in world coordinates, usable with
 /// countSpuriousCells and measureFidelity. Points outside the grid are evaluated in the nearest cell
