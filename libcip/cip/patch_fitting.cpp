@@ -8,7 +8,6 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
-#include <optional>
 #include <vector>
 
 #include "cip/cube_topology.h"
@@ -963,12 +962,14 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                             const std::size_t c = dirtyCells[j];
                             CellReference& ref = blockReference[j - b0];
                             reference(c, ref);
-                            std::optional<CornerPatch> patch;
+                            unsigned fits = 0;  // the faces this cell fits now
+                            for (int f = 0; f < 6; ++f) fits |= unsigned{ownedDirtyFace(c, f)} << f;
+                            if (!fits) continue;
+                            const CornerPatch patch = model.patch(c, loops[c]);
                             for (int f = 0; f < 6; ++f) {
-                              if (!ownedDirtyFace(c, f)) continue;
-                              if (!patch) patch = model.patch(c, loops[c]);
+                              if (!((fits >> f) & 1)) continue;
                               const auto i = static_cast<std::size_t>(cellFaces[c][f]);
-                              const FaceResult fr = fitFace(*patch, model.cells[c].pairing03, f, ref);
+                              const FaceResult fr = fitFace(patch, model.cells[c].pairing03, f, ref);
                               faceCoefficient[i] = fr.coefficient;
                               faceOk[i] = fr.ok;
                             }
