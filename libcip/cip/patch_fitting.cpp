@@ -874,7 +874,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   // whose blend level changed (a dirty face's cells are both dirty, so its first cell fits it).
   std::vector<std::uint32_t> dirtyCells(numCells), changedVertices;
   for (std::size_t c = 0; c < numCells; ++c) dirtyCells[c] = static_cast<std::uint32_t>(c);
-  std::vector<std::uint32_t> vertexCellStart, vertexCells;  // cells of each isovertex (built for round 1)
+  std::vector<std::uint8_t> vertexChanged;  // flags of changedVertices while the next round's cells are found
   std::vector<CellReference> blockReference(std::min(numCells, kBlockCells));
   // Cells without a sign-correct central coefficient or with a face without a sign-correct side coefficient.
   // Failures are few: the flags are scanned, not every cell's faces.
@@ -1058,30 +1058,29 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
       stats.lastRoundUndone = true;
       break;
     }
-    if (vertexCellStart.empty()) {  // cells of each isovertex, as a compressed table
-      vertexCellStart.assign(numVertices + 1, 0);
-      for (std::size_t c = 0; c < numCells; ++c)
-        for (int k = 0; k < model.cells[c].numCorners(); ++k) ++vertexCellStart[cellVertex(c, k) + 1];
-      for (std::size_t v = 0; v < numVertices; ++v) vertexCellStart[v + 1] += vertexCellStart[v];
-      vertexCells.resize(vertexCellStart[numVertices]);
-      std::vector<std::uint32_t> fill(vertexCellStart.begin(), vertexCellStart.end() - 1);
-      for (std::size_t c = 0; c < numCells; ++c)
-        for (int k = 0; k < model.cells[c].numCorners(); ++k)
-          vertexCells[fill[cellVertex(c, k)]++] = static_cast<std::uint32_t>(c);
-    }
-    // Next round: the cells of changed isovertices, all their faces, and the other cells of those faces.
-    for (std::uint32_t c : dirtyCells) {
-      cellDirty[c] = 0;
-      for (int f = 0; f < 6; ++f)
-        if (cellFaces[c][f] >= 0) faceDirty[static_cast<std::size_t>(cellFaces[c][f])] = 0;
+    // Next round: the cells of changed isovertices (found by a pass over the corners; there are few rounds),
+    // all their faces, and the other cells of those faces.
+    if (dirtyCells.size() == numCells) {
+      std::fill(cellDirty.begin(), cellDirty.end(), 0);
+      std::fill(faceDirty.begin(), faceDirty.end(), 0);
+    } else {
+      for (std::uint32_t c : dirtyCells) {
+        cellDirty[c] = 0;
+        for (int f = 0; f < 6; ++f)
+          if (cellFaces[c][f] >= 0) faceDirty[static_cast<std::size_t>(cellFaces[c][f])] = 0;
+      }
     }
     dirtyCells.clear();
-    for (std::uint32_t v : changedVertices)
-      for (std::uint32_t j = vertexCellStart[v]; j < vertexCellStart[v + 1]; ++j)
-        if (!cellDirty[vertexCells[j]]) {
-          cellDirty[vertexCells[j]] = 1;
-          dirtyCells.push_back(vertexCells[j]);
+    vertexChanged.resize(numVertices, 0);
+    for (std::uint32_t v : changedVertices) vertexChanged[v] = 1;
+    for (std::size_t c = 0; c < numCells; ++c)
+      for (int k = 0; k < model.cells[c].numCorners(); ++k)
+        if (vertexChanged[cellVertex(c, k)]) {
+          cellDirty[c] = 1;
+          dirtyCells.push_back(static_cast<std::uint32_t>(c));
+          break;
         }
+    for (std::uint32_t v : changedVertices) vertexChanged[v] = 0;
     const std::size_t touched = dirtyCells.size();
     for (std::size_t j = 0; j < touched; ++j)
       for (int f = 0; f < 6; ++f) {
