@@ -268,6 +268,23 @@ double squares(int m, double t) {
   return s;
 }
 
+/// The n lattice coordinates and the products of squared face planes (squares) at them, per pattern: the
+/// same for every cell and face, so computed once.
+template <int n>
+struct LatticeSquares {
+  double t[n], sq[4][n];
+  LatticeSquares() {
+    for (int i = 0; i < n; ++i) {
+      t[i] = latticeCoord(i, n);
+      for (int m = 0; m < 4; ++m) sq[m][i] = squares(m, t[i]);
+    }
+  }
+  static const LatticeSquares& get() {
+    static const LatticeSquares table;
+    return table;
+  }
+};
+
 /// The terms of valueWithoutCentral as coefficient * (normal . x + offset) * squared face planes (mask): a
 /// corner term's factor is its corner plane, a side term's the constant 1 (normal 0, offset 1). Listed once
 /// per cell for all its lattices.
@@ -322,11 +339,9 @@ class PatchLines {
     stride_[axis_] = 1;
     stride_[other_[0]] = n;
     stride_[other_[1]] = n * n;
-    for (int i = 0; i < n; ++i) {
-      const double t = latticeCoord(i, n);
-      t_[i] = t;
-      for (int m = 0; m < 4; ++m) s_[m][i] = squares(m, t);
-    }
+    const LatticeSquares<n>& table = LatticeSquares<n>::get();
+    std::copy(table.t, table.t + n, t_);
+    std::copy(&table.sq[0][0], &table.sq[0][0] + 4 * n, &s_[0][0]);
     // A term c (n . x + o) s_mL(x_L) s_mP(x_P) s_mQ(x_Q) adds s_mP[p] (t[p] X[q] + Y[q]) to A_mL[p, q] and
     // s_mP[p] Z[q] to B_mL[p, q], with X = c n_P s_mQ, Y = c (o + n_Q t) s_mQ and Z = c n_L s_mQ: the terms
     // are summed per pattern pair (mL, mP) along q first, then each pair spreads over the lines once.
@@ -440,11 +455,9 @@ void patchFaceLattice(const LinearTerms& terms, int f, double* value, double* ba
   const int axis = cube::faceAxis(f);
   const double side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
-  double t[n], sq[4][n];
-  for (int i = 0; i < n; ++i) {
-    t[i] = latticeCoord(i, n);
-    for (int m = 0; m < 4; ++m) sq[m][i] = squares(m, t[i]);
-  }
+  const LatticeSquares<n> table = LatticeSquares<n>::get();  // a local copy: `value` cannot alias it
+  const auto& t = table.t;
+  const auto& sq = table.sq;
   // A term adds su[a] (t[a] X[b] + Y[b]) with X = across sv n_u and Y = across sv (constant + n_v t): the
   // terms are summed per pattern along u first (as in PatchLines).
   double x[4][n], y[4][n];
