@@ -557,12 +557,9 @@ CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face,
                                               std::array<double, n * n>& sideBasis) {
   // The squared perpendicular plane of canonical edge j at lattice coordinate i, and per edge set the
   // products of those of its u-dependent and its v-dependent edges.
-  double t[n], square[4][n];
-  for (int i = 0; i < n; ++i) {
-    t[i] = latticeCoord(i, n);
-    square[0][i] = square[2][i] = t[i] * t[i];
-    square[1][i] = square[3][i] = (1 - t[i]) * (1 - t[i]);
-  }
+  const LatticeSquares<n> table = LatticeSquares<n>::get();  // a local copy: the outputs cannot alias it
+  const auto& t = table.t;
+  const double* const square[4] = {table.sq[1], table.sq[2], table.sq[1], table.sq[2]};  // t^2, (1 - t)^2
   auto products = [&](unsigned edges, double* u, double* v) {
     for (int i = 0; i < n; ++i) {
       double pu = 1, pv = 1;
