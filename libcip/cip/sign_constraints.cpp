@@ -17,7 +17,8 @@ std::uint64_t fails(const SignSamples& s, int i, double w) {
   return !(CoefficientInterval::slack(s.r[i] > 0, s.a[i], s.b[i], w) >= 0);
 }
 
-/// The samples from `begin` on whose bits the vector loops did not set (at most one word's worth).
+/// Failure bits of samples begin to end - 1, all in one word (bit i % 64): the samples a vector loop leaves
+/// over, or all of them without SSE2.
 std::uint64_t tailBits(const SignSamples& s, int begin, int end, double w) {
   std::uint64_t bits = 0;
   for (int i = begin; i < end; ++i) bits |= fails(s, i, w) << (i % 64);
