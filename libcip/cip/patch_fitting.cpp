@@ -784,7 +784,7 @@ struct FaceTable {
 /// The first cell of a face (lowest index) computes it. Faces are listed as the cells meet them in grid
 /// (raster) order: a cell's far face along an axis (side 1) is new, its near face (side 0) is the far face
 /// of the cell below if that cell has it. The cells below along an axis come in raster order too, so one
-/// cursor per axis finds them (fitModelPatches checks that the cells are in that order).
+/// cursor per axis finds them. Throws cip::Error if the cells are not in that order.
 FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops) {
   const std::size_t numCells = model.cells.size();
   const auto& dims = model.geometry.dims;
@@ -806,6 +806,8 @@ FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops
   std::array<std::size_t, 3> cursor{};
   for (std::size_t c = 0; c < numCells; ++c) {
     const std::uint64_t k = key(c);
+    if (c > 0 && k <= key(c - 1))
+      throw Error("fitModelPatches: cells must be in grid order (by z, y, x), each once");
     for (int f = 0; f < 6; ++f) {
       if (!((loops[c].faceMask >> f) & 1)) continue;
       const int axis = cube::faceAxis(f);
@@ -845,13 +847,6 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   const std::size_t numCells = model.cells.size(), numVertices = model.vertices.size();
   if (loops.size() != numCells) throw Error("fitModelPatches: one CellLoops per cell expected");
   if (numCells == 0) return stats;
-  auto gridOrder = [&](const ModelCell& a, const ModelCell& b) {
-    return std::array<std::uint32_t, 3>{a.index[2], a.index[1], a.index[0]} <
-           std::array<std::uint32_t, 3>{b.index[2], b.index[1], b.index[0]};
-  };
-  for (std::size_t c = 1; c < numCells; ++c)
-    if (!gridOrder(model.cells[c - 1], model.cells[c]))
-      throw Error("fitModelPatches: cells must be in grid order (by z, y, x), each once");
   // Gradient normal and edge axis of every isovertex (a byte each: most cells write each of theirs).
   std::vector<Vec3> baseNormal(numVertices);
   std::vector<std::uint8_t> edgeAxis(numVertices, 0);
