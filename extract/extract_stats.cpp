@@ -13,6 +13,7 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
   j["normals"] = s.normals;
   j["central"] = s.central;
   j["method"] = s.method;
+  j["reconstruction"] = s.reconstruction;
   std::array<std::size_t, 5> loops{};
   for (const auto& c : m.cells) loops[std::min<std::size_t>(c.numLoops, 4)]++;
   j["model"] = {{"non_empty_cells", m.cells.size()},

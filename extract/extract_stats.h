@@ -13,7 +13,7 @@ struct ExtractStats {
   std::string input, inputType;
   std::array<std::int64_t, 3> dims{};
   double isovalue = 0;
-  std::string normals, central, method;
+  std::string normals, central, method, reconstruction;
   std::map<std::string, double> seconds;            ///< per stage
   std::map<std::string, std::size_t> bytesWritten;  ///< per output file
   std::optional<FittingStats> fitting;              ///< the fitted construction's fallback (method fitted)

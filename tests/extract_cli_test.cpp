@@ -1,9 +1,12 @@
-// The extract command's run statistics (--stats-json) and its report of the fitted construction's fallback.
+// The extract command's run statistics (--stats-json), its report of the fitted construction's fallback, and
+// its choice of reference reconstruction.
 #include <gtest/gtest.h>
 
 #include <string>
 
+#include "cip/analytic_field.h"
 #include "cip/model_builder.h"
+#include "cip/model_file.h"
 #include "cip/patch_fitting.h"
 #include "cip/volume_reader.h"
 #include "support/command_line.h"
@@ -55,4 +58,32 @@ TEST(ExtractCli, StatsReportTheFittedFallback) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(test::slurp(json).find("\"fitting\""), std::string::npos);
   EXPECT_EQ(r.err.find("cells have no coefficient"), std::string::npos) << r.err;
+}
+
+// --reconstruction reaches the build (the model is the library's with that reconstruction, different from the
+// default's) and the stats file; an unknown name is refused.
+TEST(ExtractCli, ReconstructionChoosesTheReference) {
+  test::ScratchDir dir;
+  const std::string central8 = dir.file("c.cip"), monotone = dir.file("m.cip"), json = dir.file("s.json");
+  auto r = test::run(kExtract + " torus --resolution 16 --reconstruction central8 -o " + central8 +
+                     " --stats-json " + json);
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(test::slurp(json).find("\"reconstruction\": \"central8\""), std::string::npos);
+  r = test::run(kExtract + " torus --resolution 16 -o " + monotone);
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(test::slurp(central8), test::slurp(monotone));
+
+  auto field = makeAnalyticField("torus");
+  BuildOptions o;
+  o.isovalue = field->defaultIsovalue();
+  o.reconstruction = Reconstruction::Central8;
+  const Model expected = buildModel(sampleField(*field, 16, "torus"), o);
+  const Model written = readModel(central8);
+  ASSERT_EQ(written.cells.size(), expected.cells.size());
+  for (std::size_t c = 0; c < expected.cells.size(); ++c)
+    EXPECT_EQ(written.cells[c].central, expected.cells[c].central) << c;
+
+  r = test::run(kExtract + " torus --resolution 16 --reconstruction sinc -o " + dir.file("x.cip"));
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.err.find("reconstruction"), std::string::npos) << r.err;
 }

@@ -167,6 +167,31 @@ TEST(CubicEdgeVertex, ExactRootAndGradientOfAQuadraticField) {
 // Bricks sharing a plane of points: isovertices, faces and cells at the brick border are decided once, so the
 // joins stay continuous. The reference's stencil is extended linearly at brick borders (no stencil across
 // bricks); the sign checks still hold there (docs/method.md).
+// The central8 reconstruction (tricubic_reference.h) on smooth data: no wrong-sign cells, the same continuity
+// between cells, and patch normals closer to the true ones than with the monotone reference (torus at N = 32:
+// 0.80 against 1.03 degrees, docs/method.md).
+TEST(FittedPatches, Central8ReferenceOnSmoothData) {
+  auto field = makeAnalyticField("torus");
+  DenseGrid g = sampleField(*field, 32, "torus");
+  BuildOptions o;
+  o.isovalue = field->defaultIsovalue();
+  Model monotone = buildModel(g, o);
+  o.reconstruction = Reconstruction::Central8;
+  Model central8 = buildModel(g, o);
+  ASSERT_EQ(central8.cells.size(), monotone.cells.size());
+  EXPECT_EQ(countSpuriousCells(central8, *field, 8, 0.5), 0);
+  EXPECT_EQ(countSpuriousCells(central8, *field, 16, 0.5), 0);
+  const ContinuityStats s = measureContinuity(central8);
+  EXPECT_LT(s.maxGap, 1e-9);
+  EXPECT_LT(s.maxAngle, 1e-6);
+  EXPECT_EQ(s.signDisagreements, 0);
+  const double voxel = g.geometry.spacing.minCoeff(), iso = field->defaultIsovalue();
+  const FidelityMeasures c = measureFidelity(samplePatchSurface(central8, 4), *field, iso, voxel, false);
+  const FidelityMeasures m = measureFidelity(samplePatchSurface(monotone, 4), *field, iso, voxel, false);
+  EXPECT_LT(c.normalDegrees.mean, 0.9 * m.normalDegrees.mean);
+  EXPECT_LT(c.distanceVoxels.mean, m.distanceVoxels.mean);
+}
+
 TEST(FittedPatches, BricksJoinContinuously) {
   auto field = makeAnalyticField("gyroid");
   DenseGrid g = sampleField(*field, 24, "gyroid");

@@ -279,7 +279,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
             } else {
               t = linearCrossing(v0, v1, iso);
               if (options.method == PatchMethod::Fitted && options.normals == NormalMode::Gradient) {
-                t = cubicEdgeVertex(g, lp, axis, iso, vx.normal);
+                t = cubicEdgeVertex(g, lp, axis, iso, vx.normal, options.reconstruction);
               } else if (options.normals == NormalMode::Edge) {
                 vx.normal = towardsPositive;
               } else {
@@ -391,7 +391,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         } else {
           const GridBrick& b = bricks[cells[c].brick];
           setTricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]}, iso,
-                               ref);
+                               ref, options.reconstruction);
         }
         ref.metric = metric;
       });

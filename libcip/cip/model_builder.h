@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "cip/model.h"
+#include "cip/tricubic_reference.h"
 
 namespace cip {
 
@@ -28,6 +29,12 @@ struct BuildOptions {
   /// NormalMode::Gradient it also places isovertices on the reference interpolant along each edge
   /// (tricubic_reference.h), with its gradient. PatchMethod::Paper is the paper's construction.
   PatchMethod method = PatchMethod::Fitted;
+  /// With PatchMethod::Fitted and NormalMode::Gradient: how the reference interpolant gets its derivatives
+  /// from the samples (tricubic_reference.h). Monotone keeps the cells' edge crossings; Central8 follows
+  /// smooth, well-sampled data more closely (docs/method.md). Its stencil reaches 4 points beyond a cell;
+  /// at the border of a brick (sparse volumes) it reflects the brick's samples rather than reading the next
+  /// brick's, so the reference of neighbouring bricks differs slightly there (the patches still join).
+  Reconstruction reconstruction = Reconstruction::Monotone;
   /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took.
   FittingStats* fittingStats = nullptr;
   /// Analytic field sampled by the grid (world coordinates); required for NormalMode::Exact.

@@ -1,10 +1,12 @@
 #include "cip/tricubic_reference.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 
 #include "cip/cube_topology.h"
+#include "cip/error.h"
 
 namespace cip {
 
@@ -28,6 +30,104 @@ double extendedSample(const DenseGrid& grid, std::array<std::int64_t, 3> p) {
   }
   for (int a = 0; a < 3; ++a) p[a] = clampIndex(p[a], dims[a]);
   return grid.at(p[0], p[1], p[2]);
+}
+
+/// Reconstruction::Central8: the stencil reaches kRadius points to each side, so a cell needs kWide samples
+/// per axis; kCentral8[j - 1] weighs s[i + j] - s[i - j].
+constexpr int kRadius = 4, kWide = 2 + 2 * kRadius;
+constexpr double kCentral8[kRadius] = {4.0 / 5, -1.0 / 5, 4.0 / 105, -1.0 / 280};
+
+/// Entry q of a line whose entries [first, last] are set, extended beyond them by odd reflection through the
+/// end points (s[first - j] = 2 s[first] - s[first + j]), reflected again at the other end where the line is
+/// shorter than the reach: linear data stay linear. A line of one entry is extended as a constant.
+double reflected(const double* line, int stride, int first, int last, int q) {
+  if (q >= first && q <= last) return line[q * stride];
+  if (first == last) return line[first * stride];
+  const int border = q < first ? first : last;
+  return 2 * line[border * stride] - reflected(line, stride, first, last, 2 * border - q);
+}
+
+/// The 8th-order central difference at c[0] of samples kStride apart.
+template <int kStride>
+double central8(const double* c) {
+  double sum = 0;
+  for (int j = 1; j <= kRadius; ++j) sum += kCentral8[j - 1] * (c[j * kStride] - c[-j * kStride]);
+  return sum;
+}
+
+/// The cell's Hermite data (layout of CellReference::hermite) with Reconstruction::Central8: the kWide^3
+/// samples around the cell, then one pass per axis that keeps values at local 0 and 1 and adds their
+/// derivatives, each pass on the previous one's output (so mixed derivatives are differences of differences).
+void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
+                     std::array<double, 64>& out) {
+  const auto& dims = grid.geometry.dims;
+  std::array<double, kWide * kWide * kWide> samples;
+  // Block positions [first, last] per axis lie inside the grid; beyond them the samples are reflected oddly
+  // through the border point (s[-j] = 2 s[0] - s[j]: linear fields stay linear), one axis after the other.
+  std::array<int, 3> first, last;
+  for (int a = 0; a < 3; ++a) {
+    first[a] = static_cast<int>(std::clamp<std::int64_t>(kRadius - cell[a], 0, kWide - 1));
+    last[a] = static_cast<int>(std::clamp<std::int64_t>(dims[a] - 1 - cell[a] + kRadius, 0, kWide - 1));
+  }
+  auto at = [&](int i, int j, int k) -> double& {
+    return samples[static_cast<std::size_t>(i + kWide * (j + kWide * k))];
+  };
+  for (int k = first[2]; k <= last[2]; ++k)
+    for (int j = first[1]; j <= last[1]; ++j) {
+      const double* from = &grid.values[static_cast<std::size_t>(
+          grid.index(cell[0] - kRadius + first[0], cell[1] - kRadius + j, cell[2] - kRadius + k))];
+      std::copy(from, from + (last[0] - first[0] + 1), &at(first[0], j, k));
+    }
+  if (first != std::array<int, 3>{0, 0, 0} || last != std::array<int, 3>{kWide - 1, kWide - 1, kWide - 1}) {
+    // Along axis a, position q outside [first, last] of a line whose later axes are still inside the grid
+    // (earlier axes already extended).
+    for (int a = 0; a < 3; ++a) {
+      const int stride = a == 0 ? 1 : a == 1 ? kWide : kWide * kWide;
+      std::array<int, 3> lo{0, 0, 0}, hi{kWide - 1, kWide - 1, kWide - 1};
+      for (int b = a + 1; b < 3; ++b) {
+        lo[b] = first[b];
+        hi[b] = last[b];
+      }
+      lo[a] = hi[a] = 0;
+      for (int k = lo[2]; k <= hi[2]; ++k)
+        for (int j = lo[1]; j <= hi[1]; ++j)
+          for (int i = lo[0]; i <= hi[0]; ++i) {
+            double* line = &at(i, j, k);
+            for (int q = 0; q < kWide; ++q)
+              if (q < first[a] || q > last[a])
+                line[q * stride] = reflected(line, stride, first[a], last[a], q);
+          }
+    }
+  }
+  // x: kWide^2 lines of kWide samples -> 4 Hermite entries each; index kind + 4 (j + kWide k).
+  std::array<double, 4 * kWide * kWide> byX;
+  for (int line = 0; line < kWide * kWide; ++line) {
+    const double* s = &samples[static_cast<std::size_t>(kWide * line + kRadius)];
+    double* h = &byX[static_cast<std::size_t>(4 * line)];
+    h[0] = s[0];
+    h[1] = central8<1>(s);
+    h[2] = s[1];
+    h[3] = central8<1>(s + 1);
+  }
+  // y: index i + 4 (kind + 4 k).
+  std::array<double, 16 * kWide> byY;
+  for (int k = 0; k < kWide; ++k)
+    for (int i = 0; i < 4; ++i) {
+      const double* s = &byX[static_cast<std::size_t>(i + 4 * (kRadius + kWide * k))];
+      double* h = &byY[static_cast<std::size_t>(i + 16 * k)];
+      h[0] = s[0];
+      h[4] = central8<4>(s);
+      h[8] = s[4];
+      h[12] = central8<4>(s + 4);
+    }
+  // z: index i + 4 (j + 4 kind).
+  for (int ij = 0; ij < 16; ++ij) {
+    const double* s = &byY[static_cast<std::size_t>(ij + 16 * kRadius)];
+    out[static_cast<std::size_t>(ij)] = s[0];
+    out[static_cast<std::size_t>(ij + 16)] = central8<16>(s);
+    out[static_cast<std::size_t>(ij + 32)] = s[16];
+    out[static_cast<std::size_t>(ij + 48)] = central8<16>(s + 16);
+  }
 }
 
 /// Derivative at a sample from the differences to its neighbours (left = s - s_prev, right = s_next - s):
@@ -188,25 +288,45 @@ double CellReference::valueAndGradient(const Vec3& local, Vec3& gradient) const 
   return value - isovalue;
 }
 
+const char* toString(Reconstruction kind) {
+  return kind == Reconstruction::Central8 ? "central8" : "monotone";
+}
+
+Reconstruction parseReconstruction(const std::string& text) {
+  if (text == "monotone") return Reconstruction::Monotone;
+  if (text == "central8") return Reconstruction::Central8;
+  throw Error("unknown reconstruction '" + text + "' (expected monotone or central8)");
+}
+
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
-                                double isovalue) {
+                                double isovalue, Reconstruction kind) {
   CellReference ref;
-  setTricubicReference(grid, cell, isovalue, ref);
+  setTricubicReference(grid, cell, isovalue, ref, kind);
   return ref;
 }
 
 void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell, double isovalue,
-                          CellReference& ref) {
+                          CellReference& ref, Reconstruction kind) {
   ref.field = nullptr;
   ref.geometry = nullptr;
   ref.origin = Vec3::Zero();
   ref.isovalue = isovalue;
   ref.metric = Vec3::Ones();
+  if (kind == Reconstruction::Central8) {
+    central8Hermite(grid, cell, ref.hermite);
+    return;
+  }
   sampleBlock(grid, cell, ref.hermite);
   samplesToHermite(ref.hermite);
 }
 
-CellReference TricubicInterpolant::at(const Vec3& world, Vec3& local) const {
+TricubicInterpolant::TricubicInterpolant(const DenseGrid& grid, Reconstruction kind)
+    : grid_(grid), kind_(kind) {
+  static std::atomic<std::uint64_t> next{1};
+  id_ = next++;
+}
+
+const CellReference& TricubicInterpolant::at(const Vec3& world, Vec3& local) const {
   const Vec3 index = grid_.geometry.worldToIndex(world);
   std::array<std::int64_t, 3> cell;
   for (int a = 0; a < 3; ++a) {
@@ -219,23 +339,34 @@ CellReference TricubicInterpolant::at(const Vec3& world, Vec3& local) const {
                   : 0;
     local[a] = index[a] - static_cast<double>(cell[a]);
   }
-  return tricubicReference(grid_, cell, 0.0);
+  struct LastCell {
+    std::uint64_t owner = 0;
+    std::array<std::int64_t, 3> cell{};
+    CellReference ref;
+  };
+  thread_local LastCell last;
+  if (last.owner != id_ || last.cell != cell) {
+    setTricubicReference(grid_, cell, 0.0, last.ref, kind_);
+    last.owner = id_;
+    last.cell = cell;
+  }
+  return last.ref;
 }
 
 double TricubicInterpolant::value(const Vec3& world) const {
   Vec3 local;
-  CellReference ref = at(world, local);
+  const CellReference& ref = at(world, local);
   return ref.value(local);
 }
 
 Vec3 TricubicInterpolant::gradient(const Vec3& world) const {
   Vec3 local;
-  CellReference ref = at(world, local);
+  const CellReference& ref = at(world, local);
   return ref.gradient(local).cwiseQuotient(grid_.geometry.spacing);
 }
 
 double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
-                       double isovalue, Vec3& normal) {
+                       double isovalue, Vec3& normal, Reconstruction kind) {
   // A cell that has the edge: the edge at local coordinate 0 across each other axis where the grid allows.
   const auto& dims = grid.geometry.dims;
   std::array<std::int64_t, 3> cell = point;
@@ -245,10 +376,14 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
       --cell[other];
       local[other] = 1;
     }
-  // Only the Hermite data of the edge itself is needed: along it, values and slopes at both ends; across it,
-  // the slopes and mixed derivatives at both ends (for the gradient).
+  // Monotone: only the Hermite data of the edge itself is computed: along it, values and slopes at both ends;
+  // across it, the slopes and mixed derivatives at both ends (for the gradient). Central8: the cell's.
   std::array<double, 64> block;
-  sampleBlock(grid, cell, block);
+  CellReference wide;
+  if (kind == Reconstruction::Central8)
+    setTricubicReference(grid, cell, 0.0, wide, kind);
+  else
+    sampleBlock(grid, cell, block);
   std::array<int, 3> end0{}, end1{};
   for (int a = 0; a < 3; ++a) end0[a] = end1[a] = 1 + static_cast<int>(local[a]);
   end1[axis] = 2;
@@ -257,8 +392,25 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
   };
   // The reference along the edge: a cubic Hermite segment, in powers of t (one variable on [0, 1] with
   // coefficients of the size of the data: no cancellation to fear), evaluated by Horner.
-  const double v0 = sample(end0) - isovalue, d0 = blockSlope(block, end0, axis);
-  const double v1 = sample(end1) - isovalue, d1 = blockSlope(block, end1, axis);
+  double v0, d0, v1, d1;
+  if (kind == Reconstruction::Central8) {
+    // Hermite entry of the edge's end (end0 or end1 as 1 / 2 per axis) with kind `derivative` along the edge.
+    auto entry = [&](const std::array<int, 3>& end, bool derivative) {
+      std::size_t index = 0, scale = 1;
+      for (int a = 0; a < 3; ++a, scale *= 4)
+        index += scale * static_cast<std::size_t>(2 * (end[a] - 1) + (a == axis && derivative ? 1 : 0));
+      return wide.hermite[index];
+    };
+    v0 = entry(end0, false) - isovalue;
+    d0 = entry(end0, true);
+    v1 = entry(end1, false) - isovalue;
+    d1 = entry(end1, true);
+  } else {
+    v0 = sample(end0) - isovalue;
+    d0 = blockSlope(block, end0, axis);
+    v1 = sample(end1) - isovalue;
+    d1 = blockSlope(block, end1, axis);
+  }
   const double k0 = v0, k1 = d0, k2 = -3 * v0 - 2 * d0 + 3 * v1 - d1, k3 = 2 * v0 + d0 - 2 * v1 + d1;
   auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
   auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
@@ -302,10 +454,16 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
   double w[4], dw[4];
   hermiteWeights(best, w, dw);
   Vec3 gradient;
-  gradient[axis] = dw[0] * sample(end0) + dw[1] * d0 + dw[2] * sample(end1) + dw[3] * d1;
-  for (int other : cube::otherAxes(axis))
-    gradient[other] = w[0] * blockSlope(block, end0, other) + w[1] * blockMixed(block, end0, axis, other) +
-                      w[2] * blockSlope(block, end1, other) + w[3] * blockMixed(block, end1, axis, other);
+  if (kind == Reconstruction::Central8) {
+    Vec3 at = local;
+    at[axis] = best;
+    gradient = wide.gradient(at);
+  } else {
+    gradient[axis] = dw[0] * sample(end0) + dw[1] * d0 + dw[2] * sample(end1) + dw[3] * d1;
+    for (int other : cube::otherAxes(axis))
+      gradient[other] = w[0] * blockSlope(block, end0, other) + w[1] * blockMixed(block, end0, axis, other) +
+                        w[2] * blockSlope(block, end1, other) + w[3] * blockMixed(block, end1, axis, other);
+  }
   const Vec3 towardsPositive = Vec3::Unit(axis) * (v1 > 0 ? 1.0 : -1.0);
   normal = orientCornerNormal(gradient, towardsPositive);
   return best;
