@@ -47,12 +47,52 @@ double reflected(const double* line, int stride, int first, int last, int q) {
   return 2 * line[border * stride] - reflected(line, stride, first, last, 2 * border - q);
 }
 
-/// The 8th-order central difference at c[0] of samples kStride apart.
-template <int kStride>
-double central8(const double* c) {
+/// The 8th-order central difference at c[0] of samples `stride` apart.
+inline double central8(const double* c, int stride) {
   double sum = 0;
-  for (int j = 1; j <= kRadius; ++j) sum += kCentral8[j - 1] * (c[j * kStride] - c[-j * kStride]);
+  for (int j = 1; j <= kRadius; ++j) sum += kCentral8[j - 1] * (c[j * stride] - c[-j * stride]);
   return sum;
+}
+
+/// The samples of the box of grid points origin + [0, size) per axis (size at most kWide), index i + size[0]
+/// (j + size[1] k). The box must hold a grid point. Beyond the grid the samples are reflected oddly through
+/// the border point (s[-j] = 2 s[0] - s[j]: linear fields stay linear), one axis after the other.
+void reflectedBox(const DenseGrid& grid, const std::array<std::int64_t, 3>& origin,
+                  const std::array<int, 3>& size, double* out) {
+  const auto& dims = grid.geometry.dims;
+  std::array<int, 3> first, last;  // box positions inside the grid, per axis
+  for (int a = 0; a < 3; ++a) {
+    first[a] = static_cast<int>(std::clamp<std::int64_t>(-origin[a], 0, size[a] - 1));
+    last[a] = static_cast<int>(std::clamp<std::int64_t>(dims[a] - 1 - origin[a], 0, size[a] - 1));
+  }
+  const std::array<int, 3> stride{1, size[0], size[0] * size[1]};
+  auto at = [&](int i, int j, int k) -> double& {
+    return out[static_cast<std::size_t>(i + stride[1] * j + stride[2] * k)];
+  };
+  for (int k = first[2]; k <= last[2]; ++k)
+    for (int j = first[1]; j <= last[1]; ++j) {
+      const double* from = &grid.values[static_cast<std::size_t>(
+          grid.index(origin[0] + first[0], origin[1] + j, origin[2] + k))];
+      std::copy(from, from + (last[0] - first[0] + 1), &at(first[0], j, k));
+    }
+  for (int a = 0; a < 3; ++a) {
+    if (first[a] == 0 && last[a] == size[a] - 1) continue;
+    // The lines along a whose later axes are inside the grid (earlier axes already extended).
+    std::array<int, 3> lo{0, 0, 0}, hi{size[0] - 1, size[1] - 1, size[2] - 1};
+    for (int b = a + 1; b < 3; ++b) {
+      lo[b] = first[b];
+      hi[b] = last[b];
+    }
+    lo[a] = hi[a] = 0;
+    for (int k = lo[2]; k <= hi[2]; ++k)
+      for (int j = lo[1]; j <= hi[1]; ++j)
+        for (int i = lo[0]; i <= hi[0]; ++i) {
+          double* line = &at(i, j, k);
+          for (int q = 0; q < size[a]; ++q)
+            if (q < first[a] || q > last[a])
+              line[q * stride[a]] = reflected(line, stride[a], first[a], last[a], q);
+        }
+  }
 }
 
 /// The cell's Hermite data (layout of CellReference::hermite) with Reconstruction::Central8: the kWide^3
@@ -60,54 +100,18 @@ double central8(const double* c) {
 /// derivatives, each pass on the previous one's output (so mixed derivatives are differences of differences).
 void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                      std::array<double, 64>& out) {
-  const auto& dims = grid.geometry.dims;
   std::array<double, kWide * kWide * kWide> samples;
-  // Block positions [first, last] per axis lie inside the grid; beyond them the samples are reflected oddly
-  // through the border point (s[-j] = 2 s[0] - s[j]: linear fields stay linear), one axis after the other.
-  std::array<int, 3> first, last;
-  for (int a = 0; a < 3; ++a) {
-    first[a] = static_cast<int>(std::clamp<std::int64_t>(kRadius - cell[a], 0, kWide - 1));
-    last[a] = static_cast<int>(std::clamp<std::int64_t>(dims[a] - 1 - cell[a] + kRadius, 0, kWide - 1));
-  }
-  auto at = [&](int i, int j, int k) -> double& {
-    return samples[static_cast<std::size_t>(i + kWide * (j + kWide * k))];
-  };
-  for (int k = first[2]; k <= last[2]; ++k)
-    for (int j = first[1]; j <= last[1]; ++j) {
-      const double* from = &grid.values[static_cast<std::size_t>(
-          grid.index(cell[0] - kRadius + first[0], cell[1] - kRadius + j, cell[2] - kRadius + k))];
-      std::copy(from, from + (last[0] - first[0] + 1), &at(first[0], j, k));
-    }
-  if (first != std::array<int, 3>{0, 0, 0} || last != std::array<int, 3>{kWide - 1, kWide - 1, kWide - 1}) {
-    // Along axis a, position q outside [first, last] of a line whose later axes are still inside the grid
-    // (earlier axes already extended).
-    for (int a = 0; a < 3; ++a) {
-      const int stride = a == 0 ? 1 : a == 1 ? kWide : kWide * kWide;
-      std::array<int, 3> lo{0, 0, 0}, hi{kWide - 1, kWide - 1, kWide - 1};
-      for (int b = a + 1; b < 3; ++b) {
-        lo[b] = first[b];
-        hi[b] = last[b];
-      }
-      lo[a] = hi[a] = 0;
-      for (int k = lo[2]; k <= hi[2]; ++k)
-        for (int j = lo[1]; j <= hi[1]; ++j)
-          for (int i = lo[0]; i <= hi[0]; ++i) {
-            double* line = &at(i, j, k);
-            for (int q = 0; q < kWide; ++q)
-              if (q < first[a] || q > last[a])
-                line[q * stride] = reflected(line, stride, first[a], last[a], q);
-          }
-    }
-  }
+  reflectedBox(grid, {cell[0] - kRadius, cell[1] - kRadius, cell[2] - kRadius}, {kWide, kWide, kWide},
+               samples.data());
   // x: kWide^2 lines of kWide samples -> 4 Hermite entries each; index kind + 4 (j + kWide k).
   std::array<double, 4 * kWide * kWide> byX;
   for (int line = 0; line < kWide * kWide; ++line) {
     const double* s = &samples[static_cast<std::size_t>(kWide * line + kRadius)];
     double* h = &byX[static_cast<std::size_t>(4 * line)];
     h[0] = s[0];
-    h[1] = central8<1>(s);
+    h[1] = central8(s, 1);
     h[2] = s[1];
-    h[3] = central8<1>(s + 1);
+    h[3] = central8(s + 1, 1);
   }
   // y: index i + 4 (kind + 4 k).
   std::array<double, 16 * kWide> byY;
@@ -116,17 +120,17 @@ void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& c
       const double* s = &byX[static_cast<std::size_t>(i + 4 * (kRadius + kWide * k))];
       double* h = &byY[static_cast<std::size_t>(i + 16 * k)];
       h[0] = s[0];
-      h[4] = central8<4>(s);
+      h[4] = central8(s, 4);
       h[8] = s[4];
-      h[12] = central8<4>(s + 4);
+      h[12] = central8(s + 4, 4);
     }
   // z: index i + 4 (j + 4 kind).
   for (int ij = 0; ij < 16; ++ij) {
     const double* s = &byY[static_cast<std::size_t>(ij + 16 * kRadius)];
     out[static_cast<std::size_t>(ij)] = s[0];
-    out[static_cast<std::size_t>(ij + 16)] = central8<16>(s);
+    out[static_cast<std::size_t>(ij + 16)] = central8(s, 16);
     out[static_cast<std::size_t>(ij + 32)] = s[16];
-    out[static_cast<std::size_t>(ij + 48)] = central8<16>(s + 16);
+    out[static_cast<std::size_t>(ij + 48)] = central8(s + 16, 16);
   }
 }
 
@@ -365,52 +369,81 @@ Vec3 TricubicInterpolant::gradient(const Vec3& world) const {
   return ref.gradient(local).cwiseQuotient(grid_.geometry.spacing);
 }
 
-double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
-                       double isovalue, Vec3& normal, Reconstruction kind) {
-  // A cell that has the edge: the edge at local coordinate 0 across each other axis where the grid allows.
+namespace {
+
+/// The Hermite data of the reference on one grid edge: along it, (value, slope) at both ends; across it along
+/// each other axis, (slope, mixed derivative with the edge axis) at both ends. Enough for the value along the
+/// edge and the gradient on it.
+struct EdgeHermite {
+  std::array<double, 4> along;
+  std::array<std::array<double, 4>, 3> across;  ///< indexed by axis; the edge axis' entry unused
+};
+
+/// EdgeHermite with Reconstruction::Monotone, from the cell's 4x4x4 samples (a cell that has the edge: at
+/// local coordinate 0 across each other axis where the grid allows).
+EdgeHermite monotoneEdge(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis) {
   const auto& dims = grid.geometry.dims;
   std::array<std::int64_t, 3> cell = point;
-  Vec3 local = Vec3::Zero();
+  std::array<int, 3> end0{1, 1, 1};
   for (int other : cube::otherAxes(axis))
     if (point[other] + 1 >= dims[other] && point[other] > 0) {
       --cell[other];
-      local[other] = 1;
+      end0[other] = 2;
     }
-  // Monotone: only the Hermite data of the edge itself is computed: along it, values and slopes at both ends;
-  // across it, the slopes and mixed derivatives at both ends (for the gradient). Central8: the cell's.
   std::array<double, 64> block;
-  CellReference wide;
-  if (kind == Reconstruction::Central8)
-    setTricubicReference(grid, cell, 0.0, wide, kind);
-  else
-    sampleBlock(grid, cell, block);
-  std::array<int, 3> end0{}, end1{};
-  for (int a = 0; a < 3; ++a) end0[a] = end1[a] = 1 + static_cast<int>(local[a]);
+  sampleBlock(grid, cell, block);
+  std::array<int, 3> end1 = end0;
   end1[axis] = 2;
   auto sample = [&](const std::array<int, 3>& at) {
     return block[static_cast<std::size_t>(at[0] + 4 * (at[1] + 4 * at[2]))];
   };
+  EdgeHermite e{};
+  e.along = {sample(end0), blockSlope(block, end0, axis), sample(end1), blockSlope(block, end1, axis)};
+  for (int other : cube::otherAxes(axis))
+    e.across[other] = {blockSlope(block, end0, other), blockMixed(block, end0, axis, other),
+                       blockSlope(block, end1, other), blockMixed(block, end1, axis, other)};
+  return e;
+}
+
+/// EdgeHermite with Reconstruction::Central8, from one plane of samples per other axis (kWide along the edge,
+/// 2 kRadius + 1 across it) instead of the kWide^3 of a cell.
+EdgeHermite central8Edge(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis) {
+  constexpr int kAcross = 2 * kRadius + 1;
+  EdgeHermite e{};
+  for (int other : cube::otherAxes(axis)) {
+    std::array<std::int64_t, 3> origin = point;
+    std::array<int, 3> size{1, 1, 1};
+    origin[axis] -= kRadius;
+    origin[other] -= kRadius;
+    size[axis] = kWide;
+    size[other] = kAcross;
+    std::array<double, kWide * kAcross> plane;
+    reflectedBox(grid, origin, size, plane.data());
+    // Strides of the plane along the edge and across it (the box's index order is x, y, z).
+    const int alongStride = axis < other ? 1 : kAcross, acrossStride = axis < other ? kWide : 1;
+    const double* centre = &plane[static_cast<std::size_t>(kRadius * acrossStride)];
+    // The cross slope at every point of the centre line, then its differences along the edge.
+    std::array<double, kWide> slope;
+    for (int q = 0; q < kWide; ++q)
+      slope[static_cast<std::size_t>(q)] = central8(centre + q * alongStride, acrossStride);
+    e.across[other] = {slope[kRadius], central8(&slope[kRadius], 1), slope[kRadius + 1],
+                       central8(&slope[kRadius + 1], 1)};
+    const double* end0 = centre + kRadius * alongStride;
+    e.along = {end0[0], central8(end0, alongStride), end0[alongStride],
+               central8(end0 + alongStride, alongStride)};
+  }
+  return e;
+}
+
+}  // namespace
+
+double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
+                       double isovalue, Vec3& normal, Reconstruction kind) {
+  const EdgeHermite e =
+      kind == Reconstruction::Central8 ? central8Edge(grid, point, axis) : monotoneEdge(grid, point, axis);
   // The reference along the edge: a cubic Hermite segment, in powers of t (one variable on [0, 1] with
   // coefficients of the size of the data: no cancellation to fear), evaluated by Horner.
-  double v0, d0, v1, d1;
-  if (kind == Reconstruction::Central8) {
-    // Hermite entry of the edge's end (end0 or end1 as 1 / 2 per axis) with kind `derivative` along the edge.
-    auto entry = [&](const std::array<int, 3>& end, bool derivative) {
-      std::size_t index = 0, scale = 1;
-      for (int a = 0; a < 3; ++a, scale *= 4)
-        index += scale * static_cast<std::size_t>(2 * (end[a] - 1) + (a == axis && derivative ? 1 : 0));
-      return wide.hermite[index];
-    };
-    v0 = entry(end0, false) - isovalue;
-    d0 = entry(end0, true);
-    v1 = entry(end1, false) - isovalue;
-    d1 = entry(end1, true);
-  } else {
-    v0 = sample(end0) - isovalue;
-    d0 = blockSlope(block, end0, axis);
-    v1 = sample(end1) - isovalue;
-    d1 = blockSlope(block, end1, axis);
-  }
+  const double v0 = e.along[0] - isovalue, d0 = e.along[1], v1 = e.along[2] - isovalue, d1 = e.along[3];
   const double k0 = v0, k1 = d0, k2 = -3 * v0 - 2 * d0 + 3 * v1 - d1, k3 = 2 * v0 + d0 - 2 * v1 + d1;
   auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
   auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
@@ -454,15 +487,10 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
   double w[4], dw[4];
   hermiteWeights(best, w, dw);
   Vec3 gradient;
-  if (kind == Reconstruction::Central8) {
-    Vec3 at = local;
-    at[axis] = best;
-    gradient = wide.gradient(at);
-  } else {
-    gradient[axis] = dw[0] * sample(end0) + dw[1] * d0 + dw[2] * sample(end1) + dw[3] * d1;
-    for (int other : cube::otherAxes(axis))
-      gradient[other] = w[0] * blockSlope(block, end0, other) + w[1] * blockMixed(block, end0, axis, other) +
-                        w[2] * blockSlope(block, end1, other) + w[3] * blockMixed(block, end1, axis, other);
+  gradient[axis] = dw[0] * e.along[0] + dw[1] * d0 + dw[2] * e.along[2] + dw[3] * d1;
+  for (int other : cube::otherAxes(axis)) {
+    const auto& h = e.across[other];
+    gradient[other] = w[0] * h[0] + w[1] * h[1] + w[2] * h[2] + w[3] * h[3];
   }
   const Vec3 towardsPositive = Vec3::Unit(axis) * (v1 > 0 ? 1.0 : -1.0);
   normal = orientCornerNormal(gradient, towardsPositive);
