@@ -109,6 +109,11 @@ int run(const Options& opt) {
   }
   build.method = opt.method == "fitted" ? cip::PatchMethod::Fitted : cip::PatchMethod::Paper;
   build.reconstruction = cip::parseReconstruction(opt.reconstruction);
+  if (build.reconstruction != cip::Reconstruction::Monotone &&
+      (build.method != cip::PatchMethod::Fitted || build.normals != cip::NormalMode::Gradient)) {
+    throw cip::Error("--reconstruction " + opt.reconstruction +
+                     " applies to --method fitted with --normals gradient (the reference of sampled data)");
+  }
   build.skipNonFinite = opt.skipNonFinite;
   build.threads = opt.threads;
   stats.isovalue = build.isovalue;

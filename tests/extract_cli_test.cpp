@@ -61,7 +61,8 @@ TEST(ExtractCli, StatsReportTheFittedFallback) {
 }
 
 // --reconstruction reaches the build (the model is the library's with that reconstruction, different from the
-// default's) and the stats file; an unknown name is refused.
+// default's) and the stats file; an unknown name, or a build that has no reference of the samples, is
+// refused.
 TEST(ExtractCli, ReconstructionChoosesTheReference) {
   test::ScratchDir dir;
   const std::string central8 = dir.file("c.cip"), monotone = dir.file("m.cip"), json = dir.file("s.json");
@@ -86,4 +87,11 @@ TEST(ExtractCli, ReconstructionChoosesTheReference) {
   r = test::run(kExtract + " torus --resolution 16 --reconstruction sinc -o " + dir.file("x.cip"));
   EXPECT_NE(r.status, 0);
   EXPECT_NE(r.err.find("reconstruction"), std::string::npos) << r.err;
+  // Where no reference of the samples is built, asking for one is an error rather than silently ignored.
+  for (const char* other : {"--method paper", "--normals exact", "--normals edge"}) {
+    r = test::run(kExtract + " torus --resolution 16 --reconstruction central8 " + other + " -o " +
+                  dir.file("y.cip"));
+    EXPECT_NE(r.status, 0) << other;
+    EXPECT_NE(r.err.find("applies to --method fitted with --normals gradient"), std::string::npos) << r.err;
+  }
 }
