@@ -1,5 +1,6 @@
 /// @file tricubic_reference.h
-/// @brief The reference field of sampled volumes: a monotone tricubic Hermite interpolant of the samples.
+/// @brief The reference field of sampled volumes: a tricubic Hermite interpolant of the samples, monotone by
+/// default (below) or with 8th-order central differences (Reconstruction::Central8).
 ///
 /// PatchMethod::Fitted places isovertices on, takes corner normals from, and checks signs against this field
 /// (patch_fitting.h); the fidelity measures use it as the true surface of real volumes.
