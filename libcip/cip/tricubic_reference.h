@@ -40,10 +40,9 @@ enum class Reconstruction : std::uint8_t {
   Monotone = 0,
   /// 8th-order central differences (weights 4/5, -1/5, 4/105, -1/280 of s[i+j] - s[i-j]), applied along each
   /// axis in turn for the mixed derivatives: exact for polynomials up to degree 8, so the tricubic reproduces
-  /// cubics. Beyond the grid the samples are reflected oddly through the border point (s[-j] = 2 s[0] -
-  /// s[j]),
-  /// which keeps linear fields exact there. Not monotone: next to steps (CT data) and on under-sampled
-  /// data it adds crossings the cell configurations cannot follow.
+  /// cubics. Beyond the grid the samples are reflected oddly through the border point, s[-j] = 2 s[0] - s[j],
+  /// which keeps linear fields exact there. Not monotone: next to steps (CT data) and on under-sampled data
+  /// it adds crossings the cell configurations cannot follow.
   Central8 = 1,
 };
 const char* toString(Reconstruction kind);
@@ -78,8 +77,9 @@ struct CellReference {
   double valueAndGradient(const Vec3& local, Vec3& gradient) const;
 };
 
-/// The reference of one cell of a dense grid: `cell` is the cell's lowest point in the grid's own indices. A
-/// point one step outside the grid is extrapolated linearly along that axis (linear fields stay exact).
+/// The reference of one cell of a dense grid: `cell` is the cell's lowest point in the grid's own indices.
+/// Samples beyond the grid: with Monotone, one point extrapolated linearly along that axis; with Central8,
+/// odd reflection (both keep linear fields exact).
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                                 double isovalue, Reconstruction kind = Reconstruction::Monotone);
 /// tricubicReference written into `ref` (every member set; metric to ones), which spares copying its Hermite
