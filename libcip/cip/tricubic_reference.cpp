@@ -12,26 +12,6 @@ namespace cip {
 
 namespace {
 
-std::int64_t clampIndex(std::int64_t i, std::int64_t n) {
-  return std::clamp<std::int64_t>(i, 0, n - 1);
-}
-
-/// Sample at grid point p, extended linearly by one point beyond the grid along each axis (so that linear
-/// fields stay linear up to the border), clamped further out.
-double extendedSample(const DenseGrid& grid, std::array<std::int64_t, 3> p) {
-  const auto& dims = grid.geometry.dims;
-  for (int a = 0; a < 3; ++a) {
-    if (dims[a] >= 2 && (p[a] == -1 || p[a] == dims[a])) {
-      auto inner = p, next = p;
-      inner[a] = p[a] < 0 ? 0 : dims[a] - 1;
-      next[a] = p[a] < 0 ? 1 : dims[a] - 2;
-      return 2 * extendedSample(grid, inner) - extendedSample(grid, next);
-    }
-  }
-  for (int a = 0; a < 3; ++a) p[a] = clampIndex(p[a], dims[a]);
-  return grid.at(p[0], p[1], p[2]);
-}
-
 /// Reconstruction::Central8: the stencil reaches kRadius points to each side, so a cell needs kWide samples
 /// per axis; kCentral8[j - 1] weighs s[i + j] - s[i - j].
 constexpr int kRadius = 4, kWide = 2 + 2 * kRadius;
@@ -75,11 +55,13 @@ void reflectedBox(const DenseGrid& grid, const std::array<std::int64_t, 3>& orig
           grid.index(origin[0] + first[0], origin[1] + j, origin[2] + k))];
       std::copy(from, from + (last[0] - first[0] + 1), &at(first[0], j, k));
     }
-  for (int a = 0; a < 3; ++a) {
+  // z first, x last: a point outside along several axes is then reflected along x outermost, as the
+  // one-point linear extension of the monotone reference always did (the same rounding).
+  for (int a = 2; a >= 0; --a) {
     if (first[a] == 0 && last[a] == size[a] - 1) continue;
-    // The lines along a whose later axes are inside the grid (earlier axes already extended).
+    // The lines along a whose earlier axes are inside the grid (later axes already extended).
     std::array<int, 3> lo{0, 0, 0}, hi{size[0] - 1, size[1] - 1, size[2] - 1};
-    for (int b = a + 1; b < 3; ++b) {
+    for (int b = 0; b < a; ++b) {
       lo[b] = first[b];
       hi[b] = last[b];
     }
@@ -176,7 +158,7 @@ void samplesToHermite(std::array<double, 64>& data) {
 }
 
 /// The 4x4x4 samples at cell-local points -1..2 of `cell` (index i + 4 (j + 4 k)), extended beyond the grid
-/// by extendedSample.
+/// linearly by one point (so that linear fields stay linear up to the border).
 void sampleBlock(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                  std::array<double, 64>& out) {
   const auto& dims = grid.geometry.dims;
@@ -190,17 +172,9 @@ void sampleBlock(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
       }
     return;
   }
-  // Cells at the border (a tenth of a 64^3 grid's, a fifth of a 32^3 grid's): only the points outside the
-  // grid need the extension.
-  for (int k = 0; k < 4; ++k)
-    for (int j = 0; j < 4; ++j)
-      for (int i = 0; i < 4; ++i) {
-        const std::array<std::int64_t, 3> p{cell[0] - 1 + i, cell[1] - 1 + j, cell[2] - 1 + k};
-        const bool inside =
-            p[0] >= 0 && p[1] >= 0 && p[2] >= 0 && p[0] < dims[0] && p[1] < dims[1] && p[2] < dims[2];
-        out[static_cast<std::size_t>(i + 4 * (j + 4 * k))] =
-            inside ? grid.at(p[0], p[1], p[2]) : extendedSample(grid, p);
-      }
+  // Cells at the border (a tenth of a 64^3 grid's, a fifth of a 32^3 grid's): the points one step outside
+  // the grid are extended linearly, 2 s[0] - s[1], which is reflectedBox's odd reflection at that reach.
+  reflectedBox(grid, {cell[0] - 1, cell[1] - 1, cell[2] - 1}, {4, 4, 4}, out.data());
 }
 
 /// Derivative along `axis` that samplesToHermite gives at sample `at` (an index 0..3 per axis into the block,
