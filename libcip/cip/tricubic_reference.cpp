@@ -402,9 +402,11 @@ EdgeHermite central8Edge(const DenseGrid& grid, const std::array<std::int64_t, 3
       slope[static_cast<std::size_t>(q)] = central8(centre + q * alongStride, acrossStride);
     e.across[other] = {slope[kRadius], central8(&slope[kRadius], 1), slope[kRadius + 1],
                        central8(&slope[kRadius + 1], 1)};
-    const double* end0 = centre + kRadius * alongStride;
-    e.along = {end0[0], central8(end0, alongStride), end0[alongStride],
-               central8(end0 + alongStride, alongStride)};
+    if (other == cube::otherAxes(axis)[0]) {  // the edge's own line lies in both planes
+      const double* end0 = centre + kRadius * alongStride;
+      e.along = {end0[0], central8(end0, alongStride), end0[alongStride],
+                 central8(end0 + alongStride, alongStride)};
+    }
   }
   return e;
 }
