@@ -157,23 +157,11 @@ void samplesToHermite(std::array<double, 64>& data) {
   hermitePass<2>(data);
 }
 
-/// The 4x4x4 samples at cell-local points -1..2 of `cell` (index i + 4 (j + 4 k)), extended beyond the grid
-/// linearly by one point (so that linear fields stay linear up to the border).
+/// The 4x4x4 samples at cell-local points -1..2 of `cell` (index i + 4 (j + 4 k)). Beyond the grid they are
+/// extended linearly by one point, 2 s[0] - s[1] (linear fields stay linear up to the border): reflectedBox's
+/// odd reflection at that reach.
 void sampleBlock(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                  std::array<double, 64>& out) {
-  const auto& dims = grid.geometry.dims;
-  if (cell[0] >= 1 && cell[1] >= 1 && cell[2] >= 1 && cell[0] + 2 < dims[0] && cell[1] + 2 < dims[1] &&
-      cell[2] + 2 < dims[2]) {
-    for (int k = 0; k < 4; ++k)
-      for (int j = 0; j < 4; ++j) {
-        const double* row =
-            &grid.values[static_cast<std::size_t>(grid.index(cell[0] - 1, cell[1] - 1 + j, cell[2] - 1 + k))];
-        std::copy(row, row + 4, out.begin() + 4 * (j + 4 * k));
-      }
-    return;
-  }
-  // Cells at the border (a tenth of a 64^3 grid's, a fifth of a 32^3 grid's): the points one step outside
-  // the grid are extended linearly, 2 s[0] - s[1], which is reflectedBox's odd reflection at that reach.
   reflectedBox(grid, {cell[0] - 1, cell[1] - 1, cell[2] - 1}, {4, 4, 4}, out.data());
 }
 
