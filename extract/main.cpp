@@ -74,6 +74,9 @@ int run(const Options& opt) {
       read.raw = f;
     }
     read.vdbGrid = opt.grid;
+    // Sparse bricks keep the samples the reference reads around their cells, so the model is the one of
+    // the whole volume.
+    read.apron = cip::referenceReach(cip::parseReconstruction(opt.reconstruction));
     volume = cip::readVolume(opt.input, read);
     if (volume.isLevelSet) defaultIso = 0.0;
     stats.inputType = cip::describeVolume(volume);

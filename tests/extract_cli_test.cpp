@@ -84,6 +84,23 @@ TEST(ExtractCli, ReconstructionChoosesTheReference) {
   for (std::size_t c = 0; c < expected.cells.size(); ++c)
     EXPECT_EQ(written.cells[c].central, expected.cells[c].central) << c;
 
+  // A sparse volume: the bricks keep the 4 points the central8 reference reads around their cells, so the
+  // model is the one of the whole volume read as a single brick.
+  const std::string sphere = test::sharedData("vdb/sphere.vdb"), vdbModel = dir.file("v.cip");
+  r = test::run(kExtract + " " + sphere + " --reconstruction central8 -q -o " + vdbModel);
+  ASSERT_EQ(r.status, 0) << r.err;
+  VolumeReadOptions whole;
+  whole.brickCells = 1 << 20;
+  whole.apron = referenceReach(Reconstruction::Central8);
+  const SparseVolume v = readVolume(sphere, whole);
+  ASSERT_EQ(v.bricks.size(), 1u);
+  o.isovalue = 0;
+  const Model single = buildModel(v.geometry, v.bricks, o, "");
+  const Model bricked = readModel(vdbModel);
+  ASSERT_EQ(bricked.cells.size(), single.cells.size());
+  for (std::size_t c = 0; c < single.cells.size(); ++c)
+    ASSERT_EQ(bricked.cells[c].central, single.cells[c].central) << c;
+
   r = test::run(kExtract + " torus --resolution 16 --reconstruction sinc -o " + dir.file("x.cip"));
   EXPECT_NE(r.status, 0);
   EXPECT_NE(r.err.find("reconstruction"), std::string::npos) << r.err;

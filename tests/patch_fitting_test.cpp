@@ -213,8 +213,9 @@ TEST(FittedPatches, BricksJoinContinuously) {
   bricks[1].offset = {split, 0, 0};
   bricks[1].cellEnd = {dims[0] - 1 - split, dims[1] - 1, dims[2] - 1};
   for (Reconstruction kind : {Reconstruction::Monotone, Reconstruction::Central8}) {
-    // Central8 reflects each brick's samples at its border rather than reading the other brick's, so the two
-    // references differ near the seam; the patches must join all the same.
+    // These bricks keep a 1-point apron: central8 (reach 4) then extends each brick's samples at its border
+    // rather than reading the other brick's, so the two references differ near the seam; the patches must
+    // join all the same.
     BuildOptions o;
     o.method = PatchMethod::Fitted;
     o.normals = NormalMode::Gradient;

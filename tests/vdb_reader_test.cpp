@@ -49,9 +49,9 @@ DenseGrid densify(const SparseVolume& volume, const openvdb::FloatGrid& tree, co
 }
 
 /// Checks that bricks own disjoint cells and cover every cell with an active corner, with values from the
-/// tree; that each brick keeps an apron where the global grid has one; and that every brick owns a cell with
-/// an active corner.
-void checkBricks(const SparseVolume& v, const openvdb::FloatGrid& tree) {
+/// tree; that each brick keeps an apron of `apron` points where the global grid has them; and that every
+/// brick owns a cell with an active corner.
+void checkBricks(const SparseVolume& v, const openvdb::FloatGrid& tree, std::int64_t apron = 1) {
   const auto& dims = v.geometry.dims;
   openvdb::CoordBBox active = tree.evalActiveVoxelBoundingBox();
   const openvdb::Coord lo = active.min() - openvdb::Coord(1, 1, 1);
@@ -71,9 +71,9 @@ void checkBricks(const SparseVolume& v, const openvdb::FloatGrid& tree) {
       EXPECT_LE(br.offset[a] + bd[a], dims[a]);
       EXPECT_LT(br.cellBegin[a], br.cellEnd[a]);
       EXPECT_LE(br.cellEnd[a] + 1, bd[a]);
-      // Apron: one point before and after the owned cells wherever the global grid has it.
-      EXPECT_EQ(br.cellBegin[a], br.offset[a] + br.cellBegin[a] > 0 ? 1 : 0);
-      EXPECT_EQ(bd[a] - 1 - br.cellEnd[a], br.offset[a] + br.cellEnd[a] + 1 < dims[a] ? 1 : 0);
+      // Apron: `apron` points before and after the owned cells, or as many as the global grid has.
+      EXPECT_EQ(br.cellBegin[a], std::min(apron, br.offset[a] + br.cellBegin[a]));
+      EXPECT_EQ(bd[a] - 1 - br.cellEnd[a], std::min(apron, dims[a] - 1 - (br.offset[a] + br.cellEnd[a])));
     }
     // Samples equal the tree's values everywhere in the brick, apron included (spot checks on a lattice).
     auto acc = tree.getConstAccessor();
@@ -146,16 +146,30 @@ TEST(VdbReader, SphereLevelSet) {
   auto tree = loadTree(path, "ls_sphere");
   checkBricks(v, *tree);
 
-  // The brick model equals the model of the whole box densified.
+  // The brick model equals the model of the whole box densified, for each reconstruction when the bricks
+  // keep the points its reference reads.
   BuildOptions opt;
   opt.isovalue = 0;
   opt.threads = 2;
   Model sparse = buildModel(v.geometry, v.bricks, opt, "sphere");
   DenseGrid whole = densify(v, *tree, tree->evalActiveVoxelBoundingBox().min() - openvdb::Coord(1, 1, 1));
   whole.description = "sphere";
-  Model dense = buildModel(whole, opt);
   ASSERT_GT(sparse.cells.size(), 1000u);
-  EXPECT_EQ(serializeModel(sparse), serializeModel(dense));
+  EXPECT_EQ(serializeModel(sparse), serializeModel(buildModel(whole, opt)));
+  {
+    opt.reconstruction = Reconstruction::Central8;
+    VdbReadOptions wide = o;
+    wide.apron = referenceReach(opt.reconstruction);
+    ASSERT_EQ(wide.apron, 4);
+    SparseVolume w = readVdb(path, wide);
+    ASSERT_EQ(w.bricks.size(), v.bricks.size());
+    checkBricks(w, *tree, wide.apron);
+    const auto central8 = serializeModel(buildModel(w.geometry, w.bricks, opt, "sphere"));
+    EXPECT_EQ(central8, serializeModel(buildModel(whole, opt)));
+    // With the default apron the bricks extend their own samples, and the model differs near their seams.
+    EXPECT_NE(central8, serializeModel(buildModel(v.geometry, v.bricks, opt, "sphere")));
+    opt.reconstruction = Reconstruction::Monotone;
+  }
 
   // Radius from the data: zero crossings of the samples along the three axes through the centre point.
   const DenseGrid& d = whole;
@@ -278,6 +292,11 @@ TEST(VdbReader, Errors) {
   o.maxBytes = DenseGrid::defaultMaxBytes();
   o.brickCells = 0;
   expectError([&] { readVdb(sphere, o); }, {"brick size"});
+  o.brickCells = 16;
+  o.apron = 0;
+  expectError([&] { readVdb(sphere, o); }, {"apron"});
+  o.apron = 65;
+  expectError([&] { readVdb(sphere, o); }, {"apron"});
 }
 
 TEST(VdbReader, HugeActiveTileIsRefusedBeforeItsBricksAreListed) {

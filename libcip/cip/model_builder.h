@@ -31,9 +31,9 @@ struct BuildOptions {
   PatchMethod method = PatchMethod::Fitted;
   /// With PatchMethod::Fitted and NormalMode::Gradient: how the reference interpolant gets its derivatives
   /// from the samples (tricubic_reference.h). Monotone keeps the cells' edge crossings; Central8 follows
-  /// smooth, well-sampled data more closely (docs/method.md). Its stencil reaches 4 points beyond a cell;
-  /// at the border of a brick (sparse volumes) it reflects the brick's samples rather than reading the next
-  /// brick's, so the reference of neighbouring bricks differs slightly there (the patches still join).
+  /// smooth, well-sampled data more closely (docs/method.md). Bricks (sparse volumes) need
+  /// referenceReach(reconstruction) points around their cells for the model to be the whole volume's; with
+  /// fewer, each brick's samples are extended at its border, and the patches still join.
   Reconstruction reconstruction = Reconstruction::Monotone;
   /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took.
   FittingStats* fittingStats = nullptr;

@@ -8,9 +8,10 @@
 ///
 /// Geometry: `geometry` is the global grid (dims, world origin of global point (0,0,0), spacing per axis;
 /// axis-aligned only). Each brick's DenseGrid holds the values of a box of global points starting at
-/// brick.offset, including a 1-point apron around the cells it owns wherever the global grid has points
-/// there, so central-difference gradients at the owned cells' corners match those of the whole volume. Each
-/// cell is owned by at most one brick.
+/// brick.offset, including an apron of points around the cells it owns wherever the global grid has points
+/// there (1 by default; referenceReach(kind) for the reference of the fitted build, tricubic_reference.h),
+/// so derivatives at the owned cells' corners match those of the whole volume. Each cell is owned by at most
+/// one brick.
 #pragma once
 #include <string>
 #include <vector>

@@ -264,6 +264,10 @@ Reconstruction parseReconstruction(const std::string& text) {
   throw Error("unknown reconstruction '" + text + "' (expected monotone or central8)");
 }
 
+int referenceReach(Reconstruction kind) {
+  return kind == Reconstruction::Central8 ? kRadius : 1;
+}
+
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                                 double isovalue, Reconstruction kind) {
   CellReference ref;

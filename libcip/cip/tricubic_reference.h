@@ -49,6 +49,12 @@ const char* toString(Reconstruction kind);
 /// "monotone" or "central8"; throws Error otherwise.
 Reconstruction parseReconstruction(const std::string& text);
 
+/// How many sample points beyond a cell's corners, along each axis, the cell's reference and its edges'
+/// isovertices read: 1 for Monotone (limited first differences, and mixed ones of those), 4 for Central8. A
+/// brick of a sparse volume needs that many points around its cells for its references to be the whole
+/// volume's (VdbReadOptions::apron); with fewer, its samples are extended at its border as at the volume's.
+int referenceReach(Reconstruction kind);
+
 /// Cubic Hermite basis on [0, 1] for the data (value at 0, derivative at 0, value at 1, derivative at 1): the
 /// weights w at t and, when d is not null, their derivatives.
 void hermiteWeights(double t, double* w, double* d);

@@ -378,14 +378,15 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
   std::array<std::int64_t, 3> cells;
   for (int a = 0; a < 3; ++a) cells[a] = dims[a] - 1;
 
-  // A brick's placement in the global grid: the cells it owns plus an apron of one point where the grid goes
-  // on.
-  auto place = [&](const BrickKey& k, GridBrick& brick) {
-    std::array<std::int64_t, 3> bdims;
+  if (options.apron < 1 || options.apron > 64) throw Error(path + ": brick apron must be 1 to 64 points");
+  const std::int64_t apron = options.apron;
+  // A brick's placement in the global grid: the cells it owns plus an apron of up to `apron` points where the
+  // grid goes on. Sets its dims and returns its point count.
+  auto place = [&](const BrickKey& k, GridBrick& brick, std::array<std::int64_t, 3>& bdims) {
     for (int a = 0; a < 3; ++a) {
       std::int64_t c0 = k[a] * B, c1 = std::min(c0 + B, cells[a]);  // owned cells [c0, c1)
-      std::int64_t apronLo = c0 > 0 ? 1 : 0;
-      std::int64_t apronHi = c1 + 1 < dims[a] ? 1 : 0;
+      std::int64_t apronLo = std::min(apron, c0);
+      std::int64_t apronHi = std::min(apron, dims[a] - 1 - c1);
       brick.offset[a] = c0 - apronLo;
       brick.cellBegin[a] = apronLo;
       brick.cellEnd[a] = apronLo + (c1 - c0);
@@ -401,7 +402,8 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
   std::set<BrickKey> keys;
   auto add = [&](const BrickKey& k) {
     GridBrick unused;
-    if (keys.insert(k).second) totalPoints += place(k, unused);
+    std::array<std::int64_t, 3> bdims;
+    if (keys.insert(k).second) totalPoints += place(k, unused, bdims);
     return totalPoints <= maxPoints;
   };
   BrickKey last{-1, -1, -1};
@@ -444,18 +446,13 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
   }
   SparseVolume volume;
   volume.bricks.resize(keys.size());
+  volume.grids.resize(keys.size());
   std::size_t next = 0;
-  for (const BrickKey& k : keys) place(k, volume.bricks[next++]);
-
-  volume.grids.resize(volume.bricks.size());
-  for (std::size_t b = 0; b < volume.bricks.size(); ++b) {
-    GridBrick& brick = volume.bricks[b];
+  for (const BrickKey& k : keys) {
+    GridBrick& brick = volume.bricks[next];
     std::array<std::int64_t, 3> bdims;
-    for (int a = 0; a < 3; ++a) {
-      std::int64_t c1 = brick.offset[a] + brick.cellEnd[a];
-      bdims[a] = brick.cellEnd[a] + 1 + (c1 + 1 < dims[a] ? 1 : 0);
-    }
-    DenseGrid& g = volume.grids[b];
+    place(k, brick, bdims);
+    DenseGrid& g = volume.grids[next++];
     g.allocate(bdims, options.maxBytes);
     g.geometry.spacing = spacing;
     brick.grid = &g;

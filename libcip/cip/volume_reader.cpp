@@ -41,6 +41,7 @@ SparseVolume readVolume(const std::string& path, const VolumeReadOptions& option
       VdbReadOptions vdb;
       vdb.gridName = options.vdbGrid;
       vdb.brickCells = options.brickCells;
+      vdb.apron = options.apron;
       vdb.maxBytes = options.maxBytes;
       return readVdb(path, vdb);
     }

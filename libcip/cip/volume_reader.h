@@ -25,6 +25,7 @@ struct VolumeReadOptions {
   std::optional<RawFormat> raw;  ///< layout of a raw file (required when the name has no known extension)
   std::string vdbGrid;           ///< VDB grid name; empty = first float/double grid
   int brickCells = 32;           ///< VDB brick size in cells per side
+  int apron = 1;                 ///< VDB points kept around each brick (VdbReadOptions::apron)
   std::size_t maxBytes = DenseGrid::defaultMaxBytes();  ///< limit on the samples held, as doubles
 };
 
