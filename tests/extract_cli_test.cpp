@@ -51,6 +51,11 @@ TEST(ExtractCli, StatsReportTheFittedFallback) {
   EXPECT_NE(r.err.find(std::to_string(expected.unresolvedCells.size()) + " cells have no coefficient"),
             std::string::npos)
       << r.err;
+  EXPECT_EQ(r.err.find("too steep"), std::string::npos) << r.err;  // the hint is central8's alone
+  // central8 rings at the bone's steps: over 1 in 1000 cells unresolved, and extract says what to use.
+  r = test::run(kExtract + " " + volume + " --iso 1150 --reconstruction central8 -o " + dir.file("c.cip"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.err.find("too steep for --reconstruction central8"), std::string::npos) << r.err;
 
   // The paper construction has no fallback to report.
   r = test::run(kExtract + " " + volume + " --iso 1150 --method paper -o " + dir.file("p.cip") +
@@ -69,6 +74,7 @@ TEST(ExtractCli, ReconstructionChoosesTheReference) {
   auto r = test::run(kExtract + " torus --resolution 16 --reconstruction central8 -o " + central8 +
                      " --stats-json " + json);
   ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.err.find("too steep"), std::string::npos) << r.err;  // smooth data
   EXPECT_NE(test::slurp(json).find("\"reconstruction\": \"central8\""), std::string::npos);
   r = test::run(kExtract + " torus --resolution 16 -o " + monotone);
   ASSERT_EQ(r.status, 0) << r.err;
