@@ -23,12 +23,14 @@ constexpr double kCentral8[kRadius] = {4.0 / 5, -1.0 / 5, 4.0 / 105, -1.0 / 280}
 double reflected(const double* line, int stride, int first, int last, int q) {
   if (q >= first && q <= last) return line[q * stride];
   if (first == last) return line[first * stride];
-  const int border = q < first ? first : last;
-  return 2 * line[border * stride] - reflected(line, stride, first, last, 2 * border - q);
+  const int border = q < first ? first : last, mirror = 2 * border - q;
+  const double across = mirror >= first && mirror <= last ? line[mirror * stride]
+                                                          : reflected(line, stride, first, last, mirror);
+  return 2 * line[border * stride] - across;
 }
 
 /// The 8th-order central difference at c[0] of samples `stride` apart.
-inline double central8(const double* c, int stride) {
+inline double central8(const double* c, std::ptrdiff_t stride) {
   double sum = 0;
   for (int j = 1; j <= kRadius; ++j) sum += kCentral8[j - 1] * (c[j * stride] - c[-j * stride]);
   return sum;
@@ -70,34 +72,65 @@ void reflectedBox(const DenseGrid& grid, const std::array<std::int64_t, 3>& orig
       for (int j = lo[1]; j <= hi[1]; ++j)
         for (int i = lo[0]; i <= hi[0]; ++i) {
           double* line = &at(i, j, k);
-          for (int q = 0; q < size[a]; ++q)
-            if (q < first[a] || q > last[a])
-              line[q * stride[a]] = reflected(line, stride[a], first[a], last[a], q);
+          for (int q = 0; q < first[a]; ++q)
+            line[q * stride[a]] = reflected(line, stride[a], first[a], last[a], q);
+          for (int q = last[a] + 1; q < size[a]; ++q)
+            line[q * stride[a]] = reflected(line, stride[a], first[a], last[a], q);
         }
   }
 }
 
-/// The cell's Hermite data (layout of CellReference::hermite) with Reconstruction::Central8: the kWide^3
-/// samples around the cell, then one pass per axis that keeps values at local 0 and 1 and adds their
+/// The cell's Hermite data (layout of CellReference::hermite) with Reconstruction::Central8: one pass per
+/// axis over the kWide^3 samples around the cell that keeps values at local 0 and 1 and adds their
 /// derivatives, each pass on the previous one's output (so mixed derivatives are differences of differences).
+/// Samples are read in place. Beyond the grid, the odd reflection is applied to what each pass reads: along x
+/// to the samples of a line, along y to the x pass's output, along z to the y pass's. Every pass is linear,
+/// so this is the pass over reflected samples, and each entry still depends only on the samples around its
+/// grid point.
 void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                      std::array<double, 64>& out) {
-  std::array<double, kWide * kWide * kWide> samples;
-  reflectedBox(grid, {cell[0] - kRadius, cell[1] - kRadius, cell[2] - kRadius}, {kWide, kWide, kWide},
-               samples.data());
-  // x: kWide^2 lines of kWide samples -> 4 Hermite entries each; index kind + 4 (j + kWide k).
+  const auto& dims = grid.geometry.dims;
+  std::array<int, 3> first, last;  // box positions inside the grid, per axis (box origin cell - kRadius)
+  for (int a = 0; a < 3; ++a) {
+    const std::int64_t origin = cell[a] - kRadius;
+    first[a] = static_cast<int>(std::clamp<std::int64_t>(-origin, 0, kWide - 1));
+    last[a] = static_cast<int>(std::clamp<std::int64_t>(dims[a] - 1 - origin, 0, kWide - 1));
+  }
+  const bool insideX = first[0] == 0 && last[0] == kWide - 1;
+  // x: lines of kWide samples -> 4 Hermite entries each; index kind + 4 (j + kWide k). Only the lines inside
+  // the grid along y and z.
   std::array<double, 4 * kWide * kWide> byX;
-  for (int line = 0; line < kWide * kWide; ++line) {
-    const double* s = &samples[static_cast<std::size_t>(kWide * line + kRadius)];
-    double* h = &byX[static_cast<std::size_t>(4 * line)];
-    h[0] = s[0];
-    h[1] = central8(s, 1);
-    h[2] = s[1];
-    h[3] = central8(s + 1, 1);
+  std::array<double, kWide> line;
+  for (int k = first[2]; k <= last[2]; ++k)
+    for (int j = first[1]; j <= last[1]; ++j) {
+      const double* s = &grid.values[static_cast<std::size_t>(
+          grid.index(cell[0] - kRadius + first[0], cell[1] - kRadius + j, cell[2] - kRadius + k))];
+      if (insideX) {
+        s += kRadius;
+      } else {
+        std::copy(s, s + (last[0] - first[0] + 1), &line[static_cast<std::size_t>(first[0])]);
+        for (int q = 0; q < first[0]; ++q) line[q] = reflected(line.data(), 1, first[0], last[0], q);
+        for (int q = last[0] + 1; q < kWide; ++q) line[q] = reflected(line.data(), 1, first[0], last[0], q);
+        s = &line[kRadius];
+      }
+      double* h = &byX[static_cast<std::size_t>(4 * (j + kWide * k))];
+      h[0] = s[0];
+      h[1] = central8(s, 1);
+      h[2] = s[1];
+      h[3] = central8(s + 1, 1);
+    }
+  // Lines along y beyond the grid, by reflection of the x pass's output.
+  if (first[1] > 0 || last[1] < kWide - 1) {
+    for (int k = first[2]; k <= last[2]; ++k)
+      for (int kind = 0; kind < 4; ++kind) {
+        double* col = &byX[static_cast<std::size_t>(kind + 4 * kWide * k)];
+        for (int q = 0; q < first[1]; ++q) col[4 * q] = reflected(col, 4, first[1], last[1], q);
+        for (int q = last[1] + 1; q < kWide; ++q) col[4 * q] = reflected(col, 4, first[1], last[1], q);
+      }
   }
   // y: index i + 4 (kind + 4 k).
   std::array<double, 16 * kWide> byY;
-  for (int k = 0; k < kWide; ++k)
+  for (int k = first[2]; k <= last[2]; ++k)
     for (int i = 0; i < 4; ++i) {
       const double* s = &byX[static_cast<std::size_t>(i + 4 * (kRadius + kWide * k))];
       double* h = &byY[static_cast<std::size_t>(i + 16 * k)];
@@ -106,6 +139,14 @@ void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& c
       h[8] = s[4];
       h[12] = central8(s + 4, 4);
     }
+  // Planes along z beyond the grid, by reflection of the y pass's output.
+  if (first[2] > 0 || last[2] < kWide - 1) {
+    for (int ij = 0; ij < 16; ++ij) {
+      double* col = &byY[static_cast<std::size_t>(ij)];
+      for (int q = 0; q < first[2]; ++q) col[16 * q] = reflected(col, 16, first[2], last[2], q);
+      for (int q = last[2] + 1; q < kWide; ++q) col[16 * q] = reflected(col, 16, first[2], last[2], q);
+    }
+  }
   // z: index i + 4 (j + 4 kind).
   for (int ij = 0; ij < 16; ++ij) {
     const double* s = &byY[static_cast<std::size_t>(ij + 16 * kRadius)];
@@ -383,11 +424,28 @@ EdgeHermite central8Edge(const DenseGrid& grid, const std::array<std::int64_t, 3
     origin[other] -= kRadius;
     size[axis] = kWide;
     size[other] = kAcross;
+    bool inside = true;
+    for (int a = 0; a < 3; ++a)
+      inside = inside && origin[a] >= 0 && origin[a] + size[a] <= grid.geometry.dims[a];
+    // The plane's samples, read in place inside the grid and gathered with reflection elsewhere; strides
+    // along the edge and across it.
     std::array<double, kWide * kAcross> plane;
-    reflectedBox(grid, origin, size, plane.data());
-    // Strides of the plane along the edge and across it (the box's index order is x, y, z).
-    const int alongStride = axis < other ? 1 : kAcross, acrossStride = axis < other ? kWide : 1;
-    const double* centre = &plane[static_cast<std::size_t>(kRadius * acrossStride)];
+    const double* first;
+    std::ptrdiff_t alongStride, acrossStride;
+    if (inside) {
+      const std::ptrdiff_t stride[3] = {
+          1, static_cast<std::ptrdiff_t>(grid.geometry.dims[0]),
+          static_cast<std::ptrdiff_t>(grid.geometry.dims[0] * grid.geometry.dims[1])};
+      first = &grid.values[static_cast<std::size_t>(grid.index(origin[0], origin[1], origin[2]))];
+      alongStride = stride[axis];
+      acrossStride = stride[other];
+    } else {
+      reflectedBox(grid, origin, size, plane.data());
+      first = plane.data();
+      alongStride = axis < other ? 1 : kAcross;  // the box's index order is x, y, z
+      acrossStride = axis < other ? kWide : 1;
+    }
+    const double* centre = first + kRadius * acrossStride;
     // The cross slope at every point of the centre line, then its differences along the edge.
     std::array<double, kWide> slope;
     for (int q = 0; q < kWide; ++q)
