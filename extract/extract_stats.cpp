@@ -1,5 +1,6 @@
 #include "extract_stats.h"
 
+#include <cmath>
 #include <nlohmann/json.hpp>
 
 #include "cip/atomic_file.h"
@@ -20,11 +21,23 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
                 {"isovertices", m.vertices.size()},
                 {"corners", m.corners.size()},
                 {"loops_per_cell", {{"1", loops[1]}, {"2", loops[2]}, {"3", loops[3]}, {"4", loops[4]}}}};
-  if (s.fitting)
+  if (s.fitting) {
     j["fitting"] = {{"rounds", s.fitting->rounds},
                     {"last_round_undone", s.fitting->lastRoundUndone},
                     {"blended_isovertices", s.fitting->blendedVertices},
                     {"unresolved_cells", s.fitting->unresolvedCells.size()}};
+    if (s.normals != "exact") {
+      j["fitting"]["reconstruction"] = toString(s.fitting->reconstruction);
+      if (s.fitting->sampling.cells > 0) {
+        // Infinite (cubic data) is written as null: JSON has no infinity.
+        const double wavelength = s.fitting->sampling.wavelength;
+        j["fitting"]["sampling"] = {
+            {"wavelength", std::isfinite(wavelength) ? nlohmann::json(wavelength) : nlohmann::json()},
+            {"sixth_to_fourth", s.fitting->sampling.sixthToFourth},
+            {"cells", s.fitting->sampling.cells}};
+      }
+    }
+  }
   j["seconds"] = s.seconds;
   j["bytes_written"] = s.bytesWritten;
   std::string text = j.dump(2) + "\n";

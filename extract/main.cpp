@@ -26,7 +26,7 @@ double secondsSince(Clock::time_point t) {
 
 struct Options {
   std::string input, output, mcMesh, patchMesh, statsJson;
-  std::string normals = "gradient", central = "zero", method = "fitted", reconstruction = "monotone";
+  std::string normals = "gradient", central = "zero", method = "fitted", reconstruction = "auto";
   std::optional<double> iso;
   int resolution = 64, subdiv = 4, threads = 0;
   bool quiet = false, skipNonFinite = false;
@@ -76,7 +76,8 @@ int run(const Options& opt) {
     read.vdbGrid = opt.grid;
     // Sparse bricks keep the samples the reference reads around their cells, so the model is the one of
     // the whole volume.
-    read.apron = cip::referenceReach(cip::parseReconstruction(opt.reconstruction));
+    if (opt.method == "fitted" && opt.normals != "exact")
+      read.apron = cip::referenceReach(cip::parseReconstruction(opt.reconstruction));
     volume = cip::readVolume(opt.input, read);
     if (volume.isLevelSet) defaultIso = 0.0;
     stats.inputType = cip::describeVolume(volume);
@@ -112,7 +113,7 @@ int run(const Options& opt) {
   }
   build.method = opt.method == "fitted" ? cip::PatchMethod::Fitted : cip::PatchMethod::Paper;
   build.reconstruction = cip::parseReconstruction(opt.reconstruction);
-  if (build.reconstruction != cip::Reconstruction::Monotone &&
+  if (build.reconstruction == cip::Reconstruction::Central8 &&
       (build.method != cip::PatchMethod::Fitted || build.normals != cip::NormalMode::Gradient)) {
     throw cip::Error("--reconstruction " + opt.reconstruction +
                      " applies to --method fitted with --normals gradient (the reference of sampled data)");
@@ -168,12 +169,21 @@ int run(const Options& opt) {
           "%zu cells have no coefficient that keeps the reference's sign everywhere checked; they may "
           "show small wrong-sign regions (docs/method.md)\n",
           unresolved);
+    const bool sampledReference = stats.fitting && build.normals != cip::NormalMode::Exact;
     // On smooth data central8 leaves a few in 10^4 cells so; steps (CT) make it ring, and many more.
-    if (build.reconstruction == cip::Reconstruction::Central8 && unresolved * 1000 > model.cells.size())
+    if (sampledReference && stats.fitting->reconstruction == cip::Reconstruction::Central8 &&
+        unresolved * 1000 > model.cells.size())
       std::fprintf(stderr,
-                   "that is %.2f %% of the cells: the data look too steep for "
-                   "--reconstruction central8; the default, monotone, follows steps\n",
+                   "that is %.2f %% of the cells: the data look too steep for the central8 reconstruction; "
+                   "--reconstruction monotone follows steps\n",
                    100.0 * static_cast<double>(unresolved) / static_cast<double>(model.cells.size()));
+    if (sampledReference && build.reconstruction == cip::Reconstruction::Auto &&
+        stats.fitting->sampling.cells > 0)
+      std::fprintf(stderr,
+                   "reference: %s (samples near the surface: effective wavelength %.2f samples; central8 "
+                   "from %.1f)\n",
+                   cip::toString(stats.fitting->reconstruction), stats.fitting->sampling.wavelength,
+                   cip::kCentral8Wavelength);
   }
   if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, model);
   return 0;
@@ -214,10 +224,11 @@ int main(int argc, char** argv) {
   app.add_option(
          "--reconstruction", opt.reconstruction,
          "fitted method, gradient normals: how the reference interpolant of the samples gets its "
-         "derivatives: monotone (default: limited central differences, safe next to steps as in CT) "
-         "or central8 (8th-order differences: far better normals on smooth, well-sampled data; "
-         "overshoots at steps and on under-sampled data; docs/method.md), e.g. --reconstruction central8")
-      ->check(CLI::IsMember({"monotone", "central8"}));
+         "derivatives: auto (default: central8 where the samples near the surface are smooth at the "
+         "grid's scale, else monotone), monotone (limited central differences, safe next to steps as in "
+         "CT) or central8 (8th-order differences: far better normals on smooth, well-sampled data; "
+         "overshoots at steps and on under-sampled data; docs/method.md), e.g. --reconstruction monotone")
+      ->check(CLI::IsMember({"auto", "monotone", "central8"}));
   app.add_option("--resolution", opt.resolution,
                  "analytic fields: cells per axis over [-1,1]^3 (default 64), e.g. --resolution 128")
       ->check(CLI::Range(1, 4096));

@@ -52,10 +52,18 @@ TEST(ExtractCli, StatsReportTheFittedFallback) {
             std::string::npos)
       << r.err;
   EXPECT_EQ(r.err.find("too steep"), std::string::npos) << r.err;  // the hint is central8's alone
+  // The default reconstruction is auto; it says what it chose (monotone: CT steps) and from what.
+  ASSERT_EQ(expected.reconstruction, Reconstruction::Monotone);
+  EXPECT_NE(text.find("\"reconstruction\": \"auto\""), std::string::npos) << text;
+  EXPECT_NE(text.find("\"reconstruction\": \"monotone\""), std::string::npos) << text;
+  EXPECT_NE(text.find("\"cells\": " + std::to_string(expected.sampling.cells)), std::string::npos) << text;
+  EXPECT_NE(r.err.find("reference: monotone (samples near the surface: effective wavelength"),
+            std::string::npos)
+      << r.err;
   // central8 rings at the bone's steps: over 1 in 1000 cells unresolved, and extract says what to use.
   r = test::run(kExtract + " " + volume + " --iso 1150 --reconstruction central8 -o " + dir.file("c.cip"));
   ASSERT_EQ(r.status, 0) << r.err;
-  EXPECT_NE(r.err.find("too steep for --reconstruction central8"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("too steep for the central8 reconstruction"), std::string::npos) << r.err;
 
   // The paper construction has no fallback to report.
   r = test::run(kExtract + " " + volume + " --iso 1150 --method paper -o " + dir.file("p.cip") +
@@ -76,8 +84,9 @@ TEST(ExtractCli, ReconstructionChoosesTheReference) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(r.err.find("too steep"), std::string::npos) << r.err;  // smooth data
   EXPECT_NE(test::slurp(json).find("\"reconstruction\": \"central8\""), std::string::npos);
-  r = test::run(kExtract + " torus --resolution 16 -o " + monotone);
+  r = test::run(kExtract + " torus --resolution 16 --reconstruction monotone -o " + monotone);
   ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.err.find("reference:"), std::string::npos) << r.err;  // said only when auto chose
   EXPECT_NE(test::slurp(central8), test::slurp(monotone));
 
   auto field = makeAnalyticField("torus");

@@ -175,6 +175,7 @@ TEST(FittedPatches, Central8ReferenceOnSmoothData) {
   DenseGrid g = sampleField(*field, 32, "torus");
   BuildOptions o;
   o.isovalue = field->defaultIsovalue();
+  o.reconstruction = Reconstruction::Monotone;
   Model monotone = buildModel(g, o);
   o.reconstruction = Reconstruction::Central8;
   Model central8 = buildModel(g, o);

@@ -248,6 +248,22 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
                   std::to_string(badAt[1]) + "," + std::to_string(badAt[2]) +
                   "); use --skip-nonfinite to leave such cells empty");
     }
+    // The reconstruction of the reference of the samples (the fitted construction, unless exact), Auto
+    // resolved from the crossed cells in their deterministic order.
+    const bool sampledReference =
+        options.method == PatchMethod::Fitted && options.normals != NormalMode::Exact;
+    Reconstruction kind = options.reconstruction;
+    SamplingEstimate sampling;
+    if (sampledReference && kind == Reconstruction::Auto) {
+      SamplingEstimator estimator;
+      for (const CellRef& c : cells) {
+        const GridBrick& b = bricks[c.brick];
+        const auto gc = global.coords(c.key);
+        estimator.addCell(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]});
+      }
+      sampling = estimator.estimate();
+      kind = chooseReconstruction(sampling);
+    }
     // Phase B: unique isovertices, ordered by edge key; each computed from the first brick that has its edge.
     tbb::parallel_sort(edges.begin(), edges.end());
     edges.erase(std::unique(edges.begin(), edges.end(), [](auto& x, auto& y) { return x.key == y.key; }),
@@ -279,7 +295,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
             } else {
               t = linearCrossing(v0, v1, iso);
               if (options.method == PatchMethod::Fitted && options.normals == NormalMode::Gradient) {
-                t = cubicEdgeVertex(g, lp, axis, iso, vx.normal, options.reconstruction);
+                t = cubicEdgeVertex(g, lp, axis, iso, vx.normal, kind);
               } else if (options.normals == NormalMode::Edge) {
                 vx.normal = towardsPositive;
               } else {
@@ -375,8 +391,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
           }
         });
     if (fitted) {
-      // Reference: the analytic field in exact mode, else the monotone tricubic interpolant of the cell's
-      // brick.
+      // Reference: the analytic field in exact mode, else the tricubic interpolant of the cell's brick.
       const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
       FittingStats stats = fitModelPatches(model, cellLoops, [&](std::size_t c, CellReference& ref) {
         const auto& index = model.cells[c].index;  // as global.coords(cells[c].key), without divisions
@@ -391,10 +406,14 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         } else {
           const GridBrick& b = bricks[cells[c].brick];
           setTricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]}, iso,
-                               ref, options.reconstruction);
+                               ref, kind);
         }
         ref.metric = metric;
       });
+      if (sampledReference) {
+        stats.reconstruction = kind;
+        stats.sampling = sampling;
+      }
       if (options.fittingStats) *options.fittingStats = stats;
     }
   });

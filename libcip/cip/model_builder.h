@@ -31,11 +31,13 @@ struct BuildOptions {
   PatchMethod method = PatchMethod::Fitted;
   /// With PatchMethod::Fitted and NormalMode::Gradient: how the reference interpolant gets its derivatives
   /// from the samples (tricubic_reference.h). Monotone keeps the cells' edge crossings; Central8 follows
-  /// smooth, well-sampled data more closely (docs/method.md). Bricks (sparse volumes) need
-  /// referenceReach(reconstruction) points around their cells for the model to be the whole volume's; with
-  /// fewer, each brick's samples are extended at its border, and the patches still join.
-  Reconstruction reconstruction = Reconstruction::Monotone;
-  /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took.
+  /// smooth, well-sampled data more closely; Auto picks one of the two from the samples near the surface
+  /// (reconstruction_choice.h; docs/method.md). Bricks (sparse volumes) need referenceReach(reconstruction)
+  /// points around their cells for the model to be the whole volume's; with fewer, each brick's samples are
+  /// extended at its border, and the patches still join.
+  Reconstruction reconstruction = Reconstruction::Auto;
+  /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took,
+  /// and the reconstruction used.
   FittingStats* fittingStats = nullptr;
   /// Analytic field sampled by the grid (world coordinates); required for NormalMode::Exact.
   const ScalarField* exactField = nullptr;

@@ -3,8 +3,9 @@
 /// a reference surface under sign constraints, with corner-plane normals blended towards the edge direction
 /// only where a face or cell cannot be made sign-correct.
 ///
-/// Reference: the analytic field (NormalMode::Exact), else the monotone tricubic Hermite interpolant of the
-/// samples (tricubic_reference.h). Every decision uses data that all cells sharing it see identically:
+/// Reference: the analytic field (NormalMode::Exact), else a tricubic Hermite interpolant of the samples
+/// (tricubic_reference.h; BuildOptions::reconstruction chooses its derivatives). Every decision uses data
+/// that all cells sharing it see identically:
 ///  - isovertex (NormalMode::Gradient): root of the reference along the grid edge, normal = its gradient
 ///  there
 ///    (a function of the grid edge's neighbourhood only, shared by its 4 cells);
@@ -32,6 +33,7 @@
 #include <vector>
 
 #include "cip/model.h"
+#include "cip/reconstruction_choice.h"
 #include "cip/tricubic_reference.h"
 
 namespace cip {
@@ -46,6 +48,10 @@ struct FittingStats {
   /// Cells (model indices, ascending) that end without a sign-correct central coefficient or touch a face
   /// that ends without a sign-correct side coefficient: where the checks could not be met.
   std::vector<std::uint32_t> unresolvedCells;
+  /// Set by buildModel unless normals are exact: the reconstruction of the reference (Reconstruction::Auto
+  /// resolved) and, for Auto, the estimate it was resolved from (reconstruction_choice.h).
+  Reconstruction reconstruction = Reconstruction::Monotone;
+  SamplingEstimate sampling;
 };
 
 /// Replaces the side and central coefficients and the corner-plane normals of a model built with the paper's

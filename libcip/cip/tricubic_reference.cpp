@@ -296,17 +296,26 @@ double CellReference::valueAndGradient(const Vec3& local, Vec3& gradient) const 
 }
 
 const char* toString(Reconstruction kind) {
-  return kind == Reconstruction::Central8 ? "central8" : "monotone";
+  switch (kind) {
+    case Reconstruction::Central8:
+      return "central8";
+    case Reconstruction::Auto:
+      return "auto";
+    case Reconstruction::Monotone:
+      break;
+  }
+  return "monotone";
 }
 
 Reconstruction parseReconstruction(const std::string& text) {
   if (text == "monotone") return Reconstruction::Monotone;
   if (text == "central8") return Reconstruction::Central8;
-  throw Error("unknown reconstruction '" + text + "' (expected monotone or central8)");
+  if (text == "auto") return Reconstruction::Auto;
+  throw Error("unknown reconstruction '" + text + "' (expected auto, monotone or central8)");
 }
 
 int referenceReach(Reconstruction kind) {
-  return kind == Reconstruction::Central8 ? kRadius : 1;
+  return kind == Reconstruction::Monotone ? 1 : kRadius;
 }
 
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
@@ -323,6 +332,7 @@ void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 
   ref.origin = Vec3::Zero();
   ref.isovalue = isovalue;
   ref.metric = Vec3::Ones();
+  if (kind == Reconstruction::Auto) throw Error("the reference needs a resolved reconstruction, not auto");
   if (kind == Reconstruction::Central8) {
     central8Hermite(grid, cell, ref.hermite);
     return;
@@ -333,6 +343,7 @@ void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 
 
 TricubicInterpolant::TricubicInterpolant(const DenseGrid& grid, Reconstruction kind)
     : grid_(grid), kind_(kind) {
+  if (kind == Reconstruction::Auto) throw Error("the reference needs a resolved reconstruction, not auto");
   static std::atomic<std::uint64_t> next{1};
   id_ = next++;
 }
@@ -465,6 +476,7 @@ EdgeHermite central8Edge(const DenseGrid& grid, const std::array<std::int64_t, 3
 
 double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
                        double isovalue, Vec3& normal, Reconstruction kind) {
+  if (kind == Reconstruction::Auto) throw Error("the reference needs a resolved reconstruction, not auto");
   const EdgeHermite e =
       kind == Reconstruction::Central8 ? central8Edge(grid, point, axis) : monotoneEdge(grid, point, axis);
   // The reference along the edge: a cubic Hermite segment, in powers of t (one variable on [0, 1] with

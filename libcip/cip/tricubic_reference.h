@@ -44,15 +44,20 @@ enum class Reconstruction : std::uint8_t {
   /// which keeps linear fields exact there. Not monotone: next to steps (CT data) and on under-sampled data
   /// it adds crossings the cell configurations cannot follow.
   Central8 = 1,
+  /// Chosen per volume by buildModel from the samples near the isosurface (reconstruction_choice.h): Central8
+  /// where they are smooth at the grid's scale, Monotone otherwise. The default. Only buildModel takes it;
+  /// the functions below need one of the two above.
+  Auto = 2,
 };
 const char* toString(Reconstruction kind);
-/// "monotone" or "central8"; throws Error otherwise.
+/// "monotone", "central8" or "auto"; throws Error otherwise.
 Reconstruction parseReconstruction(const std::string& text);
 
 /// How many sample points beyond a cell's corners, along each axis, the cell's reference and its edges'
 /// isovertices read: 1 for Monotone (limited first differences, and mixed ones of those), 4 for Central8. A
 /// brick of a sparse volume needs that many points around its cells for its references to be the whole
 /// volume's (VdbReadOptions::apron); with fewer, its samples are extended at its border as at the volume's.
+/// Auto: 4, enough for either (and for the estimate that chooses).
 int referenceReach(Reconstruction kind);
 
 /// Cubic Hermite basis on [0, 1] for the data (value at 0, derivative at 0, value at 1, derivative at 1): the
