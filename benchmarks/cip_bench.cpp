@@ -200,12 +200,15 @@ void fidelity(const std::string& csvPath, bool quick) {
           report(std::string("patch-") + toString(m.method) + "-" + cip::toString(mode), m,
                  cip::samplePatchSurface(m, lines), true);
         }
-      {  // The fitted construction on the central8 reference of the samples (tricubic_reference.h).
+      // The fitted construction on each reference of the samples (tricubic_reference.h); the rows above
+      // have the one Reconstruction::Auto chose.
+      for (cip::Reconstruction kind : {cip::Reconstruction::Monotone, cip::Reconstruction::Central8}) {
         cip::BuildOptions o;
         o.isovalue = iso;
-        o.reconstruction = cip::Reconstruction::Central8;
+        o.reconstruction = kind;
         cip::Model m = cip::buildModel(grid, o);
-        report("patch-fitted-gradient-central8", m, cip::samplePatchSurface(m, lines), true);
+        report(std::string("patch-fitted-gradient-") + cip::toString(kind), m,
+               cip::samplePatchSurface(m, lines), true);
       }
       // Marching cubes on linearly interpolated isovertices (the usual method), and on exact ones.
       for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {

@@ -78,8 +78,8 @@ void analyticTable(bool quick) {
       "| field, N, mode | MC dist | MC facet normal | MC vertex normal "
       "| paper spurious | paper dist | paper normal "
       "| **fitted spurious** (8³/16³) | **fitted dist** | **fitted normal** (p99) "
-      "| reference normal | time paper → fitted |\n"
-      "|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+      "| reference (auto: effective wavelength) | reference normal | time paper → fitted |\n"
+      "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   std::vector<std::string> names = cip::analyticFieldNames();
   names.erase(std::remove(names.begin(), names.end(), "plane"), names.end());
   for (const std::string& name : names)
@@ -91,6 +91,8 @@ void analyticTable(bool quick) {
         o.isovalue = field->defaultIsovalue();
         o.normals = mode;
         o.exactField = field.get();
+        cip::FittingStats stats;
+        o.fittingStats = &stats;
         const auto [paper, fitted, tPaper, tFitted] = buildBoth(grid, o);
         const double voxel = grid.geometry.spacing.minCoeff(), iso = o.isovalue;
         const cip::TriangleMesh mesh = cip::marchingCubes(paper);
@@ -101,23 +103,28 @@ void analyticTable(bool quick) {
         auto paperF = cip::measureFidelity(cip::samplePatchSurface(paper, 4), *field, iso, voxel, false);
         const auto fittedSamples = cip::samplePatchSurface(fitted, 4);
         auto fittedF = cip::measureFidelity(fittedSamples, *field, iso, voxel, false);
-        const cip::TricubicInterpolant interpolant(grid);
+        const bool sampled = mode == cip::NormalMode::Gradient;
+        const cip::TricubicInterpolant interpolant(grid, stats.reconstruction);
         const std::string reference =
-            mode == cip::NormalMode::Gradient
+            sampled
                 ? std::to_string(referenceNormalError(fittedSamples, *field, interpolant, iso)).substr(0, 5)
                 : "0 (exact)";
+        char kind[64] = "exact";
+        if (sampled)
+          std::snprintf(kind, sizeof kind, "%s (%.2f)", cip::toString(stats.reconstruction),
+                        stats.sampling.wavelength);
         std::printf(
             "| %s %d %s | %.4f | %.2f | %.2f "
             "| %.1f %% | %.4f | %.2f "
             "| **%.2f / %.2f %%** | **%.4f** | **%.2f** (%.1f) "
-            "| %s | %.1f → %.1f ms (%.1f×) |\n",
+            "| %s | %s | %.1f → %.1f ms (%.1f×) |\n",
             name.c_str(), n, cip::toString(mode), mcFacet.distanceVoxels.mean, mcFacet.normalDegrees.mean,
             mcVertex.normalDegrees.mean,
             percent(cip::countSpuriousCells(paper, *field, 8, 0.5), paper.cells.size()),
             paperF.distanceVoxels.mean, paperF.normalDegrees.mean,
             percent(cip::countSpuriousCells(fitted, *field, 8, 0.5), fitted.cells.size()),
             percent(cip::countSpuriousCells(fitted, *field, 16, 0.5), fitted.cells.size()),
-            fittedF.distanceVoxels.mean, fittedF.normalDegrees.mean, fittedF.normalDegrees.p99,
+            fittedF.distanceVoxels.mean, fittedF.normalDegrees.mean, fittedF.normalDegrees.p99, kind,
             reference.c_str(), tPaper, tFitted, tFitted / tPaper);
         std::fflush(stdout);
       }
@@ -127,8 +134,8 @@ void realTable(const std::string& shared, bool quick) {
   std::printf(
       "\n| volume, isovalue | cells | paper wrong-sign cells | **fitted wrong-sign cells** (8³ / 16³) "
       "| fitted dist / normal vs the interpolant | blended isovertices, unresolved cells "
-      "| time paper → fitted |\n"
-      "|---|---|---|---|---|---|---|\n");
+      "| reference (auto: effective wavelength) | time paper → fitted |\n"
+      "|---|---|---|---|---|---|---|---|\n");
   struct Case {
     const char* file;
     double iso;
@@ -144,29 +151,29 @@ void realTable(const std::string& shared, bool quick) {
     if (!std::filesystem::exists(path)) continue;
     const cip::SparseVolume volume = cip::readVolume(path);
     const cip::DenseGrid& grid = *volume.dense();
-    const cip::TricubicInterpolant reference(grid);
     cip::BuildOptions o;
     o.isovalue = c.iso;
     cip::FittingStats stats;
     o.fittingStats = &stats;
     const auto [paper, fitted, tPaper, tFitted] = buildBoth(grid, o);
+    const cip::TricubicInterpolant reference(grid, stats.reconstruction);  // the one the build chose
     const double voxel = grid.geometry.spacing.minCoeff();
     auto f = cip::measureFidelity(cip::samplePatchSurface(fitted, 4), reference, c.iso, voxel, false);
     const std::int64_t paperBad = cip::countSpuriousCells(paper, reference, 8, 0.5);
     std::printf(
-        "| %s %g | %zu | %lld (%.1f %%) | **%lld / %lld** | %.4f / %.2f° | %zu, %zu "
+        "| %s %g | %zu | %lld (%.1f %%) | **%lld / %lld** | %.4f / %.2f° | %zu, %zu | %s (%.2f) "
         "| %.0f → %.0f ms (%.1f×) |\n",
         c.file, c.iso, fitted.cells.size(), static_cast<long long>(paperBad),
         percent(paperBad, paper.cells.size()),
         static_cast<long long>(cip::countSpuriousCells(fitted, reference, 8, 0.5)),
         static_cast<long long>(cip::countSpuriousCells(fitted, reference, 16, 0.5)), f.distanceVoxels.mean,
-        f.normalDegrees.mean, stats.blendedVertices, stats.unresolvedCells.size(), tPaper, tFitted,
-        tFitted / tPaper);
+        f.normalDegrees.mean, stats.blendedVertices, stats.unresolvedCells.size(),
+        cip::toString(stats.reconstruction), stats.sampling.wavelength, tPaper, tFitted, tFitted / tPaper);
     std::fflush(stdout);
   }
 }
 
-/// The fitted construction with the central8 reference (gradient mode) beside the default monotone one:
+/// The fitted construction with the central8 reference (gradient mode) beside the monotone one:
 /// fidelity against the truth (analytic fields) or against each build's own reference (real volumes), and
 /// time.
 void reconstructionTable(const std::string& shared, bool quick) {

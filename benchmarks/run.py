@@ -364,8 +364,9 @@ def main():
            "meshes). dist: distance to the true surface in voxels; normal: angle to the true normal in degrees; curv: "
            "|mean curvature error| × voxel size (patches only); spurious: cells whose patch has the wrong sign more "
            "than 0.5 voxel from the true surface; continuity: largest gap (voxels) and normal jump (degrees) across "
-           "shared cell faces. Method names: patch-METHOD-NORMALS (patch-fitted-gradient-central8: the central8 "
-           "reconstruction of the samples, --reconstruction central8); mc-facet = marching cubes with facet normals, "
+           "shared cell faces. Method names: patch-METHOD-NORMALS (the fitted rows use the reconstruction of the "
+           "samples that --reconstruction auto, the default, chooses; patch-fitted-gradient-monotone and "
+           "patch-fitted-gradient-central8 force one); mc-facet = marching cubes with facet normals, "
            "mc-vertexnormals-* = interpolated vertex normals; mc-exactvertices-* = marching cubes on exact edge roots.",
            "", table(fidelity, ["field", "N", "method", "dist_mean", "dist_p99", "normal_mean", "normal_p99",
                                 "curv_mean", "spurious_cells", "cells", "continuity_max_gap",
