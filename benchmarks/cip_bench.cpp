@@ -210,11 +210,13 @@ void fidelity(const std::string& csvPath, bool quick) {
         report(std::string("patch-fitted-gradient-") + cip::toString(kind), m,
                cip::samplePatchSurface(m, lines), true);
       }
-      // Marching cubes on linearly interpolated isovertices (the usual method), and on exact ones.
+      // Marching cubes on linearly interpolated isovertices with central-difference normals (the usual
+      // method: the paper construction's isovertices; the fitted one's lie on its reference), and on exact ones.
       for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
         cip::BuildOptions o;
         o.isovalue = iso;
         o.normals = mode;
+        o.method = cip::PatchMethod::Paper;
         o.exactField = field.get();
         o.fitCoefficients = false;
         cip::Model m = cip::buildModel(grid, o);

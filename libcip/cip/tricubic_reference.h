@@ -1,6 +1,7 @@
 /// @file tricubic_reference.h
-/// @brief The reference field of sampled volumes: a tricubic Hermite interpolant of the samples, monotone by
-/// default (below) or with 8th-order central differences (Reconstruction::Central8).
+/// @brief The reference field of sampled volumes: a tricubic Hermite interpolant of the samples, monotone
+/// (below) or with 8th-order central differences (Reconstruction::Central8); buildModel picks one per volume
+/// by default (Reconstruction::Auto, reconstruction_choice.h).
 ///
 /// PatchMethod::Fitted places isovertices on, takes corner normals from, and checks signs against this field
 /// (patch_fitting.h); the fidelity measures use it as the true surface of real volumes.
@@ -36,7 +37,7 @@ namespace cip {
 /// How the reference's derivatives at the grid points come from the samples.
 enum class Reconstruction : std::uint8_t {
   /// Central differences limited by Hyman's filter (above): monotone along grid lines, so the reference's
-  /// crossings of every cell edge are the marching-cubes configuration's. The default.
+  /// crossings of every cell edge are the marching-cubes configuration's.
   Monotone = 0,
   /// 8th-order central differences (weights 4/5, -1/5, 4/105, -1/280 of s[i+j] - s[i-j]), applied along each
   /// axis in turn for the mixed derivatives: exact for polynomials up to degree 8, so the tricubic reproduces
