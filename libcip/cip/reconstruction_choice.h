@@ -36,7 +36,7 @@ struct SamplingEstimate {
 
 /// Accumulates the estimate over crossed cells. At each cell's lowest corner, along each axis, it adds the
 /// squared fourth and sixth differences centred at the corner; an axis whose 7 samples leave the grid or are
-/// not all finite is left out there. Fourth differences below 1e-10 of the samples' size (a cubic, to
+/// not all finite is left out there. Fourth differences below 1e-12 of the samples' size (a cubic, to
 /// rounding) count as none: such data have no finest scale, and get an infinite wavelength. The sums, and so
 /// the result, depend on the order of the cells only through rounding; buildModel adds them in grid order.
 class SamplingEstimator {
