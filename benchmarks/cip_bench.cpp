@@ -211,7 +211,8 @@ void fidelity(const std::string& csvPath, bool quick) {
                cip::samplePatchSurface(m, lines), true);
       }
       // Marching cubes on linearly interpolated isovertices with central-difference normals (the usual
-      // method: the paper construction's isovertices; the fitted one's lie on its reference), and on exact ones.
+      // method: the paper construction's isovertices; the fitted one's lie on its reference), and on exact
+      // ones.
       for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
         cip::BuildOptions o;
         o.isovalue = iso;
