@@ -29,6 +29,17 @@ double reflected(const double* line, int stride, int first, int last, int q) {
   return 2 * line[border * stride] - across;
 }
 
+/// Entries q in [0, size) of a line outside [first, last] set by `reflected` from the entries inside.
+void extendLine(double* line, int stride, int first, int last, int size) {
+  for (int q = 0; q < first; ++q) line[q * stride] = reflected(line, stride, first, last, q);
+  for (int q = last + 1; q < size; ++q) line[q * stride] = reflected(line, stride, first, last, q);
+}
+
+/// Throws for Reconstruction::Auto, which only buildModel resolves.
+void requireResolved(Reconstruction kind) {
+  if (kind == Reconstruction::Auto) throw Error("the reference needs a resolved reconstruction, not auto");
+}
+
 /// The 8th-order central difference at c[0] of samples `stride` apart.
 inline double central8(const double* c, std::ptrdiff_t stride) {
   double sum = 0;
@@ -71,11 +82,7 @@ void reflectedBox(const DenseGrid& grid, const std::array<std::int64_t, 3>& orig
     for (int k = lo[2]; k <= hi[2]; ++k)
       for (int j = lo[1]; j <= hi[1]; ++j)
         for (int i = lo[0]; i <= hi[0]; ++i) {
-          double* line = &at(i, j, k);
-          for (int q = 0; q < first[a]; ++q)
-            line[q * stride[a]] = reflected(line, stride[a], first[a], last[a], q);
-          for (int q = last[a] + 1; q < size[a]; ++q)
-            line[q * stride[a]] = reflected(line, stride[a], first[a], last[a], q);
+          extendLine(&at(i, j, k), stride[a], first[a], last[a], size[a]);
         }
   }
 }
@@ -109,8 +116,7 @@ void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& c
         s += kRadius;
       } else {
         std::copy(s, s + (last[0] - first[0] + 1), &line[static_cast<std::size_t>(first[0])]);
-        for (int q = 0; q < first[0]; ++q) line[q] = reflected(line.data(), 1, first[0], last[0], q);
-        for (int q = last[0] + 1; q < kWide; ++q) line[q] = reflected(line.data(), 1, first[0], last[0], q);
+        extendLine(line.data(), 1, first[0], last[0], kWide);
         s = &line[kRadius];
       }
       double* h = &byX[static_cast<std::size_t>(4 * (j + kWide * k))];
@@ -122,11 +128,8 @@ void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& c
   // Lines along y beyond the grid, by reflection of the x pass's output.
   if (first[1] > 0 || last[1] < kWide - 1) {
     for (int k = first[2]; k <= last[2]; ++k)
-      for (int kind = 0; kind < 4; ++kind) {
-        double* col = &byX[static_cast<std::size_t>(kind + 4 * kWide * k)];
-        for (int q = 0; q < first[1]; ++q) col[4 * q] = reflected(col, 4, first[1], last[1], q);
-        for (int q = last[1] + 1; q < kWide; ++q) col[4 * q] = reflected(col, 4, first[1], last[1], q);
-      }
+      for (int kind = 0; kind < 4; ++kind)
+        extendLine(&byX[static_cast<std::size_t>(kind + 4 * kWide * k)], 4, first[1], last[1], kWide);
   }
   // y: index i + 4 (kind + 4 k).
   std::array<double, 16 * kWide> byY;
@@ -141,11 +144,8 @@ void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& c
     }
   // Planes along z beyond the grid, by reflection of the y pass's output.
   if (first[2] > 0 || last[2] < kWide - 1) {
-    for (int ij = 0; ij < 16; ++ij) {
-      double* col = &byY[static_cast<std::size_t>(ij)];
-      for (int q = 0; q < first[2]; ++q) col[16 * q] = reflected(col, 16, first[2], last[2], q);
-      for (int q = last[2] + 1; q < kWide; ++q) col[16 * q] = reflected(col, 16, first[2], last[2], q);
-    }
+    for (int ij = 0; ij < 16; ++ij)
+      extendLine(&byY[static_cast<std::size_t>(ij)], 16, first[2], last[2], kWide);
   }
   // z: index i + 4 (j + 4 kind).
   for (int ij = 0; ij < 16; ++ij) {
@@ -332,7 +332,7 @@ void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 
   ref.origin = Vec3::Zero();
   ref.isovalue = isovalue;
   ref.metric = Vec3::Ones();
-  if (kind == Reconstruction::Auto) throw Error("the reference needs a resolved reconstruction, not auto");
+  requireResolved(kind);
   if (kind == Reconstruction::Central8) {
     central8Hermite(grid, cell, ref.hermite);
     return;
@@ -343,7 +343,7 @@ void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 
 
 TricubicInterpolant::TricubicInterpolant(const DenseGrid& grid, Reconstruction kind)
     : grid_(grid), kind_(kind) {
-  if (kind == Reconstruction::Auto) throw Error("the reference needs a resolved reconstruction, not auto");
+  requireResolved(kind);
   static std::atomic<std::uint64_t> next{1};
   id_ = next++;
 }
@@ -476,7 +476,7 @@ EdgeHermite central8Edge(const DenseGrid& grid, const std::array<std::int64_t, 3
 
 double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
                        double isovalue, Vec3& normal, Reconstruction kind) {
-  if (kind == Reconstruction::Auto) throw Error("the reference needs a resolved reconstruction, not auto");
+  requireResolved(kind);
   const EdgeHermite e =
       kind == Reconstruction::Central8 ? central8Edge(grid, point, axis) : monotoneEdge(grid, point, axis);
   // The reference along the edge: a cubic Hermite segment, in powers of t (one variable on [0, 1] with
