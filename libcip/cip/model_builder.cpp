@@ -14,6 +14,7 @@
 #include "cip/error.h"
 #include "cip/patch_coefficients.h"
 #include "cip/patch_fitting.h"
+#include "cip/point_hermite.h"
 
 namespace cip {
 
@@ -264,6 +265,20 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
       sampling = estimator.estimate();
       kind = chooseReconstruction(sampling);
     }
+    // The reference's data at the corners of the crossed cells, once per grid point, per brick.
+    std::vector<PointHermiteTable> tables(sampledReference ? bricks.size() : 0);
+    if (sampledReference) {
+      std::vector<std::vector<std::int64_t>> brickCells(bricks.size());
+      for (const CellRef& c : cells) {
+        const GridBrick& b = bricks[c.brick];
+        const auto gc = global.coords(c.key);
+        brickCells[c.brick].push_back(
+            b.grid->index(gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]));
+      }
+      tbb::parallel_for(std::size_t(0), bricks.size(), [&](std::size_t bi) {
+        if (!brickCells[bi].empty()) tables[bi] = PointHermiteTable(*bricks[bi].grid, brickCells[bi], kind);
+      });
+    }
     // Phase B: unique isovertices, ordered by edge key; each computed from the first brick that has its edge.
     tbb::parallel_sort(edges.begin(), edges.end());
     edges.erase(std::unique(edges.begin(), edges.end(), [](auto& x, auto& y) { return x.key == y.key; }),
@@ -295,7 +310,9 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
             } else {
               t = linearCrossing(v0, v1, iso);
               if (options.method == PatchMethod::Fitted && options.normals == NormalMode::Gradient) {
-                t = cubicEdgeVertex(g, lp, axis, iso, vx.normal, kind);
+                const PointHermiteTable& table = tables[edges[n].brick];
+                t = cubicEdgeVertex(table.at(g.index(lp[0], lp[1], lp[2])),
+                                    table.at(g.index(lq[0], lq[1], lq[2])), axis, iso, vx.normal);
               } else if (options.normals == NormalMode::Edge) {
                 vx.normal = towardsPositive;
               } else {
@@ -405,8 +422,8 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
           ref.isovalue = iso;
         } else {
           const GridBrick& b = bricks[cells[c].brick];
-          setTricubicReference(*b.grid, {gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]}, iso,
-                               ref, kind);
+          tables[cells[c].brick].setReference({gc[0] - b.offset[0], gc[1] - b.offset[1], gc[2] - b.offset[2]},
+                                              iso, ref);
         }
         ref.metric = metric;
       });

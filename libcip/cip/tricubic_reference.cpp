@@ -7,223 +7,15 @@
 
 #include "cip/cube_topology.h"
 #include "cip/error.h"
+#include "cip/point_hermite.h"
 
 namespace cip {
 
 namespace {
 
-/// Reconstruction::Central8: the stencil reaches kRadius points to each side, so a cell needs kWide samples
-/// per axis; kCentral8[j - 1] weighs s[i + j] - s[i - j].
-constexpr int kRadius = 4, kWide = 2 + 2 * kRadius;
-constexpr double kCentral8[kRadius] = {4.0 / 5, -1.0 / 5, 4.0 / 105, -1.0 / 280};
-
-/// Entry q of a line whose entries [first, last] are set, extended beyond them by odd reflection through the
-/// end points (s[first - j] = 2 s[first] - s[first + j]), reflected again at the other end where the line is
-/// shorter than the reach: linear data stay linear. A line of one entry is extended as a constant.
-double reflected(const double* line, int stride, int first, int last, int q) {
-  if (q >= first && q <= last) return line[q * stride];
-  if (first == last) return line[first * stride];
-  const int border = q < first ? first : last, mirror = 2 * border - q;
-  const double across = mirror >= first && mirror <= last ? line[mirror * stride]
-                                                          : reflected(line, stride, first, last, mirror);
-  return 2 * line[border * stride] - across;
-}
-
-/// Entries q in [0, size) of a line outside [first, last] set by `reflected` from the entries inside.
-void extendLine(double* line, int stride, int first, int last, int size) {
-  for (int q = 0; q < first; ++q) line[q * stride] = reflected(line, stride, first, last, q);
-  for (int q = last + 1; q < size; ++q) line[q * stride] = reflected(line, stride, first, last, q);
-}
-
 /// Throws for Reconstruction::Auto, which only buildModel resolves.
 void requireResolved(Reconstruction kind) {
   if (kind == Reconstruction::Auto) throw Error("the reference needs a resolved reconstruction, not auto");
-}
-
-/// The 8th-order central difference at c[0] of samples `stride` apart.
-inline double central8(const double* c, std::ptrdiff_t stride) {
-  double sum = 0;
-  for (int j = 1; j <= kRadius; ++j) sum += kCentral8[j - 1] * (c[j * stride] - c[-j * stride]);
-  return sum;
-}
-
-/// The samples of the box of grid points origin + [0, size) per axis (size at most kWide), index i + size[0]
-/// (j + size[1] k). The box must hold a grid point. Beyond the grid the samples are reflected oddly through
-/// the border point (s[-j] = 2 s[0] - s[j]: linear fields stay linear), one axis after the other.
-void reflectedBox(const DenseGrid& grid, const std::array<std::int64_t, 3>& origin,
-                  const std::array<int, 3>& size, double* out) {
-  const auto& dims = grid.geometry.dims;
-  std::array<int, 3> first, last;  // box positions inside the grid, per axis
-  for (int a = 0; a < 3; ++a) {
-    first[a] = static_cast<int>(std::clamp<std::int64_t>(-origin[a], 0, size[a] - 1));
-    last[a] = static_cast<int>(std::clamp<std::int64_t>(dims[a] - 1 - origin[a], 0, size[a] - 1));
-  }
-  const std::array<int, 3> stride{1, size[0], size[0] * size[1]};
-  auto at = [&](int i, int j, int k) -> double& {
-    return out[static_cast<std::size_t>(i + stride[1] * j + stride[2] * k)];
-  };
-  for (int k = first[2]; k <= last[2]; ++k)
-    for (int j = first[1]; j <= last[1]; ++j) {
-      const double* from = &grid.values[static_cast<std::size_t>(
-          grid.index(origin[0] + first[0], origin[1] + j, origin[2] + k))];
-      std::copy(from, from + (last[0] - first[0] + 1), &at(first[0], j, k));
-    }
-  // z first, x last: a point outside along several axes is then reflected along x outermost, as the
-  // one-point linear extension of the monotone reference always did (the same rounding).
-  for (int a = 2; a >= 0; --a) {
-    if (first[a] == 0 && last[a] == size[a] - 1) continue;
-    // The lines along a whose earlier axes are inside the grid (later axes already extended).
-    std::array<int, 3> lo{0, 0, 0}, hi{size[0] - 1, size[1] - 1, size[2] - 1};
-    for (int b = 0; b < a; ++b) {
-      lo[b] = first[b];
-      hi[b] = last[b];
-    }
-    lo[a] = hi[a] = 0;
-    for (int k = lo[2]; k <= hi[2]; ++k)
-      for (int j = lo[1]; j <= hi[1]; ++j)
-        for (int i = lo[0]; i <= hi[0]; ++i) {
-          extendLine(&at(i, j, k), stride[a], first[a], last[a], size[a]);
-        }
-  }
-}
-
-/// The cell's Hermite data (layout of CellReference::hermite) with Reconstruction::Central8: one pass per
-/// axis over the kWide^3 samples around the cell that keeps values at local 0 and 1 and adds their
-/// derivatives, each pass on the previous one's output (so mixed derivatives are differences of differences).
-/// Samples are read in place. Beyond the grid, the odd reflection is applied to what each pass reads: along x
-/// to the samples of a line, along y to the x pass's output, along z to the y pass's. Every pass is linear,
-/// so this is the pass over reflected samples, and each entry still depends only on the samples around its
-/// grid point.
-void central8Hermite(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
-                     std::array<double, 64>& out) {
-  const auto& dims = grid.geometry.dims;
-  std::array<int, 3> first, last;  // box positions inside the grid, per axis (box origin cell - kRadius)
-  for (int a = 0; a < 3; ++a) {
-    const std::int64_t origin = cell[a] - kRadius;
-    first[a] = static_cast<int>(std::clamp<std::int64_t>(-origin, 0, kWide - 1));
-    last[a] = static_cast<int>(std::clamp<std::int64_t>(dims[a] - 1 - origin, 0, kWide - 1));
-  }
-  const bool insideX = first[0] == 0 && last[0] == kWide - 1;
-  // x: lines of kWide samples -> 4 Hermite entries each; index kind + 4 (j + kWide k). Only the lines inside
-  // the grid along y and z.
-  std::array<double, 4 * kWide * kWide> byX;
-  std::array<double, kWide> line;
-  for (int k = first[2]; k <= last[2]; ++k)
-    for (int j = first[1]; j <= last[1]; ++j) {
-      const double* s = &grid.values[static_cast<std::size_t>(
-          grid.index(cell[0] - kRadius + first[0], cell[1] - kRadius + j, cell[2] - kRadius + k))];
-      if (insideX) {
-        s += kRadius;
-      } else {
-        std::copy(s, s + (last[0] - first[0] + 1), &line[static_cast<std::size_t>(first[0])]);
-        extendLine(line.data(), 1, first[0], last[0], kWide);
-        s = &line[kRadius];
-      }
-      double* h = &byX[static_cast<std::size_t>(4 * (j + kWide * k))];
-      h[0] = s[0];
-      h[1] = central8(s, 1);
-      h[2] = s[1];
-      h[3] = central8(s + 1, 1);
-    }
-  // Lines along y beyond the grid, by reflection of the x pass's output.
-  if (first[1] > 0 || last[1] < kWide - 1) {
-    for (int k = first[2]; k <= last[2]; ++k)
-      for (int kind = 0; kind < 4; ++kind)
-        extendLine(&byX[static_cast<std::size_t>(kind + 4 * kWide * k)], 4, first[1], last[1], kWide);
-  }
-  // y: index i + 4 (kind + 4 k).
-  std::array<double, 16 * kWide> byY;
-  for (int k = first[2]; k <= last[2]; ++k)
-    for (int i = 0; i < 4; ++i) {
-      const double* s = &byX[static_cast<std::size_t>(i + 4 * (kRadius + kWide * k))];
-      double* h = &byY[static_cast<std::size_t>(i + 16 * k)];
-      h[0] = s[0];
-      h[4] = central8(s, 4);
-      h[8] = s[4];
-      h[12] = central8(s + 4, 4);
-    }
-  // Planes along z beyond the grid, by reflection of the y pass's output.
-  if (first[2] > 0 || last[2] < kWide - 1) {
-    for (int ij = 0; ij < 16; ++ij)
-      extendLine(&byY[static_cast<std::size_t>(ij)], 16, first[2], last[2], kWide);
-  }
-  // z: index i + 4 (j + 4 kind).
-  for (int ij = 0; ij < 16; ++ij) {
-    const double* s = &byY[static_cast<std::size_t>(ij + 16 * kRadius)];
-    out[static_cast<std::size_t>(ij)] = s[0];
-    out[static_cast<std::size_t>(ij + 16)] = central8(s, 16);
-    out[static_cast<std::size_t>(ij + 32)] = s[16];
-    out[static_cast<std::size_t>(ij + 48)] = central8(s + 16, 16);
-  }
-}
-
-/// Derivative at a sample from the differences to its neighbours (left = s - s_prev, right = s_next - s):
-/// their mean, zero at a local extremum, at most three times the smaller difference (Hyman's filter).
-double limitedSlope(double left, double right) {
-  // Written with selects rather than branches: the conditions follow the data, so branches mispredict.
-  const double centred = 0.5 * (left + right);
-  const double magnitude = std::min(std::abs(centred), 3 * std::min(std::abs(left), std::abs(right)));
-  const double limited = std::copysign(magnitude, centred);
-  return left * right > 0 ? limited : 0.0;
-}
-
-/// One pass of samplesToHermite along `axis` (stride 4^axis): entry low + stride (i + 4 high) is point i of
-/// the line (low, high). The lines of one `high` are contiguous in `low`, so for y and z the pass vectorises.
-template <int axis>
-void hermitePass(std::array<double, 64>& data) {
-  constexpr int stride = axis == 0 ? 1 : axis == 1 ? 4 : 16;
-  for (int high = 0; high < 16 / stride; ++high)
-    for (int low = 0; low < stride; ++low) {
-      double* line = &data[static_cast<std::size_t>(low + 4 * stride * high)];
-      // Indices of axes converted before this one are Hermite kinds (odd = derivative): x for the y and z
-      // passes, y for the z pass.
-      const int base = low + 4 * stride * high;
-      const bool values = !((axis > 0 && (base & 1)) || (axis > 1 && ((base >> 2) & 1)));
-      const double s0 = line[0], s1 = line[stride], s2 = line[2 * stride], s3 = line[3 * stride];
-      const double d1 = values ? limitedSlope(s1 - s0, s2 - s1) : 0.5 * (s2 - s0);
-      const double d2 = values ? limitedSlope(s2 - s1, s3 - s2) : 0.5 * (s3 - s1);
-      line[0] = s1;
-      line[stride] = d1;
-      line[2 * stride] = s2;
-      line[3 * stride] = d2;
-    }
-}
-
-/// Turns the 4x4x4 samples at cell-local points -1..2 into the cell's Hermite data, one axis at a time (x, y,
-/// z). A line of values (all its other indices already values, or samples) gets limited derivatives; a line
-/// of derivatives gets central differences (mixed derivatives).
-void samplesToHermite(std::array<double, 64>& data) {
-  hermitePass<0>(data);
-  hermitePass<1>(data);
-  hermitePass<2>(data);
-}
-
-/// The 4x4x4 samples at cell-local points -1..2 of `cell` (index i + 4 (j + 4 k)). Beyond the grid they are
-/// extended linearly by one point, 2 s[0] - s[1] (linear fields stay linear up to the border): reflectedBox's
-/// odd reflection at that reach.
-void sampleBlock(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
-                 std::array<double, 64>& out) {
-  reflectedBox(grid, {cell[0] - 1, cell[1] - 1, cell[2] - 1}, {4, 4, 4}, out.data());
-}
-
-/// Derivative along `axis` that samplesToHermite gives at sample `at` (an index 0..3 per axis into the block,
-/// with 1 or 2 along `axis`), of the samples (limited slope).
-double blockSlope(const std::array<double, 64>& block, std::array<int, 3> at, int axis) {
-  constexpr int stride[3] = {1, 4, 16};
-  const int base = at[0] + 4 * (at[1] + 4 * at[2]);
-  const double s = block[static_cast<std::size_t>(base)];
-  return limitedSlope(s - block[static_cast<std::size_t>(base - stride[axis])],
-                      block[static_cast<std::size_t>(base + stride[axis])] - s);
-}
-
-/// Mixed derivative along axes a and b that samplesToHermite gives at sample `at` (1 or 2 along both): the
-/// central difference, along the later axis of the two, of the limited slopes along the earlier one.
-double blockMixed(const std::array<double, 64>& block, std::array<int, 3> at, int a, int b) {
-  const int first = std::min(a, b), second = std::max(a, b);
-  auto ahead = at, behind = at;
-  ++ahead[second];
-  --behind[second];
-  return 0.5 * (blockSlope(block, ahead, first) - blockSlope(block, behind, first));
 }
 
 }  // namespace
@@ -315,7 +107,7 @@ Reconstruction parseReconstruction(const std::string& text) {
 }
 
 int referenceReach(Reconstruction kind) {
-  return kind == Reconstruction::Monotone ? 1 : kRadius;
+  return kind == Reconstruction::Monotone ? 1 : 4;
 }
 
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
@@ -333,12 +125,15 @@ void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 
   ref.isovalue = isovalue;
   ref.metric = Vec3::Ones();
   requireResolved(kind);
-  if (kind == Reconstruction::Central8) {
-    central8Hermite(grid, cell, ref.hermite);
-    return;
+  std::array<std::array<int, 3>, 8> at;
+  std::array<PointHermite, 8> data;
+  std::array<const PointHermite*, 8> corners;
+  for (int v = 0; v < 8; ++v) {
+    at[static_cast<std::size_t>(v)] = cube::vertexCoords(v);
+    corners[static_cast<std::size_t>(v)] = &data[static_cast<std::size_t>(v)];
   }
-  sampleBlock(grid, cell, ref.hermite);
-  samplesToHermite(ref.hermite);
+  hermiteInBox(grid, kind, cell, {2, 2, 2}, at.data(), at.size(), data.data());
+  cellHermite(corners, ref.hermite);
 }
 
 TricubicInterpolant::TricubicInterpolant(const DenseGrid& grid, Reconstruction kind)
@@ -387,101 +182,27 @@ Vec3 TricubicInterpolant::gradient(const Vec3& world) const {
   return ref.gradient(local).cwiseQuotient(grid_.geometry.spacing);
 }
 
-namespace {
-
-/// The Hermite data of the reference on one grid edge: along it, (value, slope) at both ends; across it along
-/// each other axis, (slope, mixed derivative with the edge axis) at both ends. Enough for the value along the
-/// edge and the gradient on it.
-struct EdgeHermite {
-  std::array<double, 4> along;
-  std::array<std::array<double, 4>, 3> across;  ///< indexed by axis; the edge axis' entry unused
-};
-
-/// EdgeHermite with Reconstruction::Monotone, from the cell's 4x4x4 samples (a cell that has the edge: at
-/// local coordinate 0 across each other axis where the grid allows).
-EdgeHermite monotoneEdge(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis) {
-  const auto& dims = grid.geometry.dims;
-  std::array<std::int64_t, 3> cell = point;
-  std::array<int, 3> end0{1, 1, 1};
-  for (int other : cube::otherAxes(axis))
-    if (point[other] + 1 >= dims[other] && point[other] > 0) {
-      --cell[other];
-      end0[other] = 2;
-    }
-  std::array<double, 64> block;
-  sampleBlock(grid, cell, block);
-  std::array<int, 3> end1 = end0;
-  end1[axis] = 2;
-  auto sample = [&](const std::array<int, 3>& at) {
-    return block[static_cast<std::size_t>(at[0] + 4 * (at[1] + 4 * at[2]))];
-  };
-  EdgeHermite e{};
-  e.along = {sample(end0), blockSlope(block, end0, axis), sample(end1), blockSlope(block, end1, axis)};
-  for (int other : cube::otherAxes(axis))
-    e.across[other] = {blockSlope(block, end0, other), blockMixed(block, end0, axis, other),
-                       blockSlope(block, end1, other), blockMixed(block, end1, axis, other)};
-  return e;
-}
-
-/// EdgeHermite with Reconstruction::Central8, from one plane of samples per other axis (kWide along the edge,
-/// 2 kRadius + 1 across it) instead of the kWide^3 of a cell.
-EdgeHermite central8Edge(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis) {
-  constexpr int kAcross = 2 * kRadius + 1;
-  EdgeHermite e{};
-  for (int other : cube::otherAxes(axis)) {
-    std::array<std::int64_t, 3> origin = point;
-    std::array<int, 3> size{1, 1, 1};
-    origin[axis] -= kRadius;
-    origin[other] -= kRadius;
-    size[axis] = kWide;
-    size[other] = kAcross;
-    bool inside = true;
-    for (int a = 0; a < 3; ++a)
-      inside = inside && origin[a] >= 0 && origin[a] + size[a] <= grid.geometry.dims[a];
-    // The plane's samples, read in place inside the grid and gathered with reflection elsewhere; strides
-    // along the edge and across it.
-    std::array<double, kWide * kAcross> plane;
-    const double* first;
-    std::ptrdiff_t alongStride, acrossStride;
-    if (inside) {
-      const std::ptrdiff_t stride[3] = {
-          1, static_cast<std::ptrdiff_t>(grid.geometry.dims[0]),
-          static_cast<std::ptrdiff_t>(grid.geometry.dims[0] * grid.geometry.dims[1])};
-      first = &grid.values[static_cast<std::size_t>(grid.index(origin[0], origin[1], origin[2]))];
-      alongStride = stride[axis];
-      acrossStride = stride[other];
-    } else {
-      reflectedBox(grid, origin, size, plane.data());
-      first = plane.data();
-      alongStride = axis < other ? 1 : kAcross;  // the box's index order is x, y, z
-      acrossStride = axis < other ? kWide : 1;
-    }
-    const double* centre = first + kRadius * acrossStride;
-    // The cross slope at every point of the centre line, then its differences along the edge.
-    std::array<double, kWide> slope;
-    for (int q = 0; q < kWide; ++q)
-      slope[static_cast<std::size_t>(q)] = central8(centre + q * alongStride, acrossStride);
-    e.across[other] = {slope[kRadius], central8(&slope[kRadius], 1), slope[kRadius + 1],
-                       central8(&slope[kRadius + 1], 1)};
-    if (other == cube::otherAxes(axis)[0]) {  // the edge's own line lies in both planes
-      const double* end0 = centre + kRadius * alongStride;
-      e.along = {end0[0], central8(end0, alongStride), end0[alongStride],
-                 central8(end0 + alongStride, alongStride)};
-    }
-  }
-  return e;
-}
-
-}  // namespace
-
 double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
                        double isovalue, Vec3& normal, Reconstruction kind) {
   requireResolved(kind);
-  const EdgeHermite e =
-      kind == Reconstruction::Central8 ? central8Edge(grid, point, axis) : monotoneEdge(grid, point, axis);
+  std::array<int, 3> size{1, 1, 1};
+  size[axis] = 2;
+  std::array<std::array<int, 3>, 2> at{};
+  at[1][static_cast<std::size_t>(axis)] = 1;
+  std::array<PointHermite, 2> ends;
+  hermiteInBox(grid, kind, point, size, at.data(), at.size(), ends.data());
+  return cubicEdgeVertex(ends[0], ends[1], axis, isovalue, normal);
+}
+
+double cubicEdgeVertex(const PointHermite& start, const PointHermite& end, int axis, double isovalue,
+                       Vec3& normal) {
+  // The edge's data from its ends': along it, (value, slope) at both ends; across it along each other axis,
+  // (slope, mixed derivative with the edge axis) at both ends.
+  const int along = 1 << axis;
+  const std::array<double, 4> e{start[0], start[along], end[0], end[along]};
   // The reference along the edge: a cubic Hermite segment, in powers of t (one variable on [0, 1] with
   // coefficients of the size of the data: no cancellation to fear), evaluated by Horner.
-  const double v0 = e.along[0] - isovalue, d0 = e.along[1], v1 = e.along[2] - isovalue, d1 = e.along[3];
+  const double v0 = e[0] - isovalue, d0 = e[1], v1 = e[2] - isovalue, d1 = e[3];
   const double k0 = v0, k1 = d0, k2 = -3 * v0 - 2 * d0 + 3 * v1 - d1, k3 = 2 * v0 + d0 - 2 * v1 + d1;
   auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
   auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
@@ -525,10 +246,11 @@ double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>&
   double w[4], dw[4];
   hermiteWeights(best, w, dw);
   Vec3 gradient;
-  gradient[axis] = dw[0] * e.along[0] + dw[1] * d0 + dw[2] * e.along[2] + dw[3] * d1;
+  gradient[axis] = dw[0] * e[0] + dw[1] * d0 + dw[2] * e[2] + dw[3] * d1;
   for (int other : cube::otherAxes(axis)) {
-    const auto& h = e.across[other];
-    gradient[other] = w[0] * h[0] + w[1] * h[1] + w[2] * h[2] + w[3] * h[3];
+    const int across = 1 << other;
+    gradient[other] =
+        w[0] * start[across] + w[1] * start[across | along] + w[2] * end[across] + w[3] * end[across | along];
   }
   const Vec3 towardsPositive = Vec3::Unit(axis) * (v1 > 0 ? 1.0 : -1.0);
   normal = orientCornerNormal(gradient, towardsPositive);

@@ -61,6 +61,11 @@ Reconstruction parseReconstruction(const std::string& text);
 /// Auto: 4, enough for either (and for the estimate that chooses).
 int referenceReach(Reconstruction kind);
 
+/// The reference's data at one grid point, index dx + 2 dy + 4 dz with d = 1 for a derivative along that
+/// axis (per index unit): value, d/dx, d/dy, d2/dxdy, d/dz, d2/dxdz, d2/dydz, d3/dxdydz. A cell's Hermite
+/// data are its 8 corners' (point_hermite.h computes them).
+using PointHermite = std::array<double, 8>;
+
 /// Cubic Hermite basis on [0, 1] for the data (value at 0, derivative at 0, value at 1, derivative at 1): the
 /// weights w at t and, when d is not null, their derivatives.
 void hermiteWeights(double t, double* w, double* d);
@@ -123,5 +128,9 @@ class TricubicInterpolant : public ScalarField {
 /// only on the samples around the edge, so the four cells sharing it agree.
 double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
                        double isovalue, Vec3& normal, Reconstruction kind = Reconstruction::Monotone);
+/// cubicEdgeVertex from the reference's data at the edge's ends, `start` at the lower one (as buildModel
+/// takes them from a PointHermiteTable).
+double cubicEdgeVertex(const PointHermite& start, const PointHermite& end, int axis, double isovalue,
+                       Vec3& normal);
 
 }  // namespace cip
