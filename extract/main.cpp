@@ -247,8 +247,11 @@ int main(int argc, char** argv) {
                  "raw input: bytes to skip before the first sample (default 0), e.g. --offset 352");
   app.add_option("--grid", opt.grid,
                  "OpenVDB input: grid name (default: the first float or double grid), e.g. --grid density");
-  app.add_option("--mc-mesh", opt.mcMesh,
-                 "also write the marching-cubes mesh on the same grid (binary PLY), e.g. --mc-mesh mc.ply");
+  app.add_option(
+      "--mc-mesh", opt.mcMesh,
+      "also write the marching-cubes mesh of the model's cells and isovertices (binary PLY; the "
+      "isovertices are linear crossings with --method paper, the reference's edge roots with fitted), "
+      "e.g. --mc-mesh mc.ply");
   app.add_option(
       "--patch-mesh", opt.patchMesh,
       "also write a crack-free mesh of the corner-patch surface (binary PLY), e.g. --patch-mesh p.ply");
