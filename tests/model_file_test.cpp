@@ -57,6 +57,8 @@ TEST(ModelFile, RoundTripIsIdentical) {
   EXPECT_EQ(serializeModel(r), serializeModel(m));
   EXPECT_EQ(r.geometry.dims, m.geometry.dims);
   EXPECT_EQ(r.source, m.source);
+  ASSERT_TRUE(m.reconstruction.has_value());  // the default build follows a reference of the samples
+  EXPECT_EQ(r.reconstruction, m.reconstruction);
   ASSERT_EQ(r.cells.size(), m.cells.size());
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> u(0, 1);
@@ -110,6 +112,16 @@ TEST(ModelFile, OutOfRangeFieldsAreRejectedEvenWithAValidChecksum) {
   expectParseError(patched(12, &badDim, 8), "grid dimension");
   std::uint32_t version = 99;
   expectParseError(patched(8, &version, 4), "version 99");
+  const std::size_t reconstructionOffset = 12 + 24 + 24 + 24 + 8 + 2;
+  std::uint8_t unknownReconstruction = 3;
+  expectParseError(patched(reconstructionOffset, &unknownReconstruction, 1), "unknown reconstruction 3");
+  // 0: none recorded, as in files written before the field; 1 monotone; 2 central8.
+  const std::optional<Reconstruction> expected[] = {std::nullopt, Reconstruction::Monotone,
+                                                    Reconstruction::Central8};
+  for (std::uint8_t stored = 0; stored < 3; ++stored) {
+    const std::vector<std::uint8_t> b = patched(reconstructionOffset, &stored, 1);
+    EXPECT_EQ(parseModel(b.data(), b.size()).reconstruction, expected[stored]);
+  }
   double nan = std::nan("");
   expectParseError(patched(12 + 24 + 24, &nan, 8), "spacing");
   // First cell: its index, configuration and first corner index.

@@ -98,14 +98,24 @@ TEST(SamplingEstimate, AutoBuildsWithTheChosenReconstruction) {
     ASSERT_EQ(o.reconstruction, Reconstruction::Auto);  // the default
     FittingStats stats;
     o.fittingStats = &stats;
-    const auto automatic = serializeModel(buildModel(g, o));
+    const Model model = buildModel(g, o);
+    const auto automatic = serializeModel(model);
     EXPECT_EQ(stats.reconstruction, expected) << name;
+    EXPECT_EQ(model.reconstruction, expected) << name;  // recorded in the model (file) too
     EXPECT_EQ(stats.sampling.cells, estimateSampling(g, o.isovalue).cells) << name;
     EXPECT_NEAR(stats.sampling.wavelength, estimateSampling(g, o.isovalue).wavelength, 1e-9) << name;
     o.reconstruction = expected;
     EXPECT_EQ(automatic, serializeModel(buildModel(g, o))) << name;
     EXPECT_EQ(stats.reconstruction, expected);
     EXPECT_EQ(stats.sampling.cells, 0);  // nothing estimated when the choice is given
+    // No reference of the samples, none recorded: the paper's construction, and exact normals.
+    o.method = PatchMethod::Paper;
+    o.reconstruction = Reconstruction::Auto;
+    EXPECT_FALSE(buildModel(g, o).reconstruction.has_value()) << name;
+    o.method = PatchMethod::Fitted;
+    o.normals = NormalMode::Exact;
+    o.exactField = field.get();
+    EXPECT_FALSE(buildModel(g, o).reconstruction.has_value()) << name;
   }
 }
 

@@ -4,12 +4,14 @@
 #pragma once
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "cip/cell_loops.h"
 #include "cip/corner_patch.h"
 #include "cip/isovertex.h"
+#include "cip/tricubic_reference.h"
 
 namespace cip {
 
@@ -41,6 +43,10 @@ struct Model {
   double isovalue = 0;
   NormalMode normalMode = NormalMode::Gradient;
   PatchMethod method = PatchMethod::Paper;
+  /// The reconstruction of the reference the fitted construction followed (Monotone or Central8, as Auto
+  /// chose), when it followed one of the samples; empty for `paper` models, exact normals, and files written
+  /// before it was recorded.
+  std::optional<Reconstruction> reconstruction;
   std::string source;  ///< free text: where the volume came from
 
   std::vector<IsoVertex> vertices;  ///< shared corner planes (index coordinates)

@@ -428,6 +428,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
         ref.metric = metric;
       });
       if (sampledReference) {
+        model.reconstruction = kind;
         stats.reconstruction = kind;
         stats.sampling = sampling;
       }

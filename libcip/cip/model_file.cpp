@@ -90,7 +90,9 @@ std::vector<std::uint8_t> serializeModel(const Model& m) {
   w.put<double>(m.isovalue);
   w.put<std::uint8_t>(static_cast<std::uint8_t>(m.normalMode));
   w.put<std::uint8_t>(static_cast<std::uint8_t>(m.method));
-  w.put<std::uint16_t>(0);
+  w.put<std::uint8_t>(m.reconstruction ? static_cast<std::uint8_t>(1 + static_cast<int>(*m.reconstruction))
+                                       : 0);
+  w.put<std::uint8_t>(0);
   std::string source = m.source.substr(0, kMaxSourceBytes);
   w.put<std::uint32_t>(static_cast<std::uint32_t>(source.size()));
   w.bytes.insert(w.bytes.end(), source.begin(), source.end());
@@ -149,7 +151,12 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
     r.fail("unknown patch method " + std::to_string(method));
   }
   m.method = static_cast<PatchMethod>(method);
-  r.get<std::uint16_t>("reserved");
+  const auto reconstruction = r.get<std::uint8_t>("reconstruction");
+  if (reconstruction > 1 + static_cast<int>(Reconstruction::Central8)) {
+    r.fail("unknown reconstruction " + std::to_string(reconstruction));
+  }
+  if (reconstruction > 0) m.reconstruction = static_cast<Reconstruction>(reconstruction - 1);
+  r.get<std::uint8_t>("reserved");
   auto sourceLen = r.get<std::uint32_t>("source length");
   if (sourceLen > kMaxSourceBytes) r.fail("source description longer than 64 KiB");
   r.need(sourceLen, "source description");
