@@ -32,7 +32,7 @@ void cellHermite(const std::array<const PointHermite*, 8>& corners, std::array<d
 
 /// The reference's data at a set of points of one grid, for a whole model: computed in parallel over tiles of
 /// the grid (each tile over the bounding box of its points), looked up by a rank over a bit per grid point
-/// (one bit and half a byte per grid point besides the data).
+/// (a bit and a half per grid point besides the data).
 class PointHermiteTable {
  public:
   PointHermiteTable() = default;
