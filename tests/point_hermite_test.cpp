@@ -74,7 +74,12 @@ TEST(PointHermiteTable, HoldsEveryCornerOfItsCellsOnce) {
   const DenseGrid g = unevenVolume(6);
   const std::vector<std::array<std::int64_t, 3>> cells{{0, 0, 0}, {1, 0, 0}, {68, 35, 33}, {40, 20, 20}};
   const PointHermiteTable table(g, indices(g, cells), Reconstruction::Monotone);
-  EXPECT_EQ(table.size(), 8u + 4u + 8u + 8u);  // the first two cells share a face
+  EXPECT_EQ(table.size(), 8u + 4u + 8u + 8u);       // the first two cells share a face
+  EXPECT_THROW(table.at(g.index(3, 3, 3)), Error);  // not a corner of the table's cells
+  EXPECT_THROW(table.at(-1), Error);
+  EXPECT_THROW(table.at(g.geometry.pointCount()), Error);
+  CellReference ref;
+  EXPECT_THROW(table.setReference({2, 0, 0}, 0.0, ref), Error);  // shares 4 corners with {1, 0, 0}, not 8
   for (const auto& c : cells)
     for (int v = 0; v < 8; ++v) {
       const auto o = cube::vertexCoords(v);

@@ -244,6 +244,11 @@ PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<st
   });
 }
 
+bool PointHermiteTable::holds(std::int64_t index) const {
+  const auto w = static_cast<std::size_t>(index >> 6);
+  return index >= 0 && w < present_.size() && (present_[w] >> (index & 63)) & 1;
+}
+
 std::size_t PointHermiteTable::rank(std::int64_t index) const {
   const std::size_t w = static_cast<std::size_t>(index >> 6);
   const std::uint64_t below = (std::uint64_t(1) << (index & 63)) - 1;
@@ -251,6 +256,7 @@ std::size_t PointHermiteTable::rank(std::int64_t index) const {
 }
 
 const PointHermite& PointHermiteTable::at(std::int64_t index) const {
+  if (!holds(index)) throw Error("grid point not in the reference table");
   return data_[rank(index)];
 }
 
@@ -263,12 +269,15 @@ void PointHermiteTable::setReference(const std::array<std::int64_t, 3>& cell, do
   ref.metric = Vec3::Ones();
   const std::int64_t base = grid_->index(cell[0], cell[1], cell[2]);
   const std::int64_t dx = grid_->geometry.dims[0], dxy = dx * grid_->geometry.dims[1];
-  std::array<const PointHermite*, 8> corners;
   const std::int64_t rows[4] = {base, base + dx, base + dxy, base + dx + dxy};
+  bool held = true;
+  for (std::int64_t row : rows) held = held && holds(row) && holds(row + 1);
+  if (!held) throw Error("cell not in the reference table");
+  std::array<const PointHermite*, 8> corners;
   for (int r = 0; r < 4; ++r) {
-    const std::size_t n = rank(rows[r]);
+    const std::size_t n = rank(rows[r]);  // x + 1 is the next point held
     corners[static_cast<std::size_t>(2 * r)] = &data_[n];
-    corners[static_cast<std::size_t>(2 * r + 1)] = &data_[n + 1];  // the next point present is x + 1
+    corners[static_cast<std::size_t>(2 * r + 1)] = &data_[n + 1];
   }
   cellHermite(corners, ref.hermite);
 }

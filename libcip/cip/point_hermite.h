@@ -40,15 +40,17 @@ class PointHermiteTable {
   /// grid). The grid must outlive the table.
   PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells, Reconstruction kind);
 
-  /// The data at grid point `index` (grid.index), which must be a corner of one of the table's cells.
+  /// The data at grid point `index` (grid.index), which must be a corner of one of the table's cells (throws
+  /// Error otherwise).
   const PointHermite& at(std::int64_t index) const;
   /// The reference of one of the table's cells, given by its lowest point, written into `ref` as
-  /// setTricubicReference does (every member set; metric to ones).
+  /// setTricubicReference does (every member set; metric to ones). Throws Error for a cell not in the table.
   void setReference(const std::array<std::int64_t, 3>& cell, double isovalue, CellReference& ref) const;
   std::size_t size() const { return data_.size(); }
 
  private:
-  std::size_t rank(std::int64_t index) const;
+  bool holds(std::int64_t index) const;
+  std::size_t rank(std::int64_t index) const;  ///< of a point held
   const DenseGrid* grid_ = nullptr;
   std::vector<std::uint64_t> present_;  ///< bit per grid point (grid.index order)
   std::vector<std::uint32_t> before_;   ///< points present in the words before each word of present_
