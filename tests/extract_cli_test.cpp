@@ -95,6 +95,8 @@ TEST(ExtractCli, ReconstructionChoosesTheReference) {
   o.reconstruction = Reconstruction::Central8;
   const Model expected = buildModel(sampleField(*field, 16, "torus"), o);
   const Model written = readModel(central8);
+  EXPECT_EQ(written.reconstruction, Reconstruction::Central8);  // recorded in the file
+  EXPECT_EQ(readModel(monotone).reconstruction, Reconstruction::Monotone);
   ASSERT_EQ(written.cells.size(), expected.cells.size());
   for (std::size_t c = 0; c < expected.cells.size(); ++c)
     EXPECT_EQ(written.cells[c].central, expected.cells[c].central) << c;
