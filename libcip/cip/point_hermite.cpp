@@ -156,6 +156,10 @@ constexpr std::array<std::int64_t, 3> kTile{32, 16, 16};
 
 }  // namespace
 
+int referenceReach(Reconstruction kind) {
+  return kind == Reconstruction::Monotone ? MonotoneStencil::kReach : Central8Stencil::kReach;
+}
+
 void hermiteInBox(const DenseGrid& grid, Reconstruction kind, const std::array<std::int64_t, 3>& lo,
                   const std::array<int, 3>& size, const std::array<int, 3>* at, std::size_t count,
                   PointHermite* out) {

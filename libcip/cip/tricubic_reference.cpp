@@ -106,10 +106,6 @@ Reconstruction parseReconstruction(const std::string& text) {
   throw Error("unknown reconstruction '" + text + "' (expected auto, monotone or central8)");
 }
 
-int referenceReach(Reconstruction kind) {
-  return kind == Reconstruction::Monotone ? 1 : 4;
-}
-
 CellReference tricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell,
                                 double isovalue, Reconstruction kind) {
   CellReference ref;
@@ -124,8 +120,7 @@ void setTricubicReference(const DenseGrid& grid, const std::array<std::int64_t, 
   ref.origin = Vec3::Zero();
   ref.isovalue = isovalue;
   ref.metric = Vec3::Ones();
-  requireResolved(kind);
-  std::array<std::array<int, 3>, 8> at;
+  std::array<std::array<int, 3>, 8> at;  // hermiteInBox refuses Auto
   std::array<PointHermite, 8> data;
   std::array<const PointHermite*, 8> corners;
   for (int v = 0; v < 8; ++v) {
@@ -184,8 +179,7 @@ Vec3 TricubicInterpolant::gradient(const Vec3& world) const {
 
 double cubicEdgeVertex(const DenseGrid& grid, const std::array<std::int64_t, 3>& point, int axis,
                        double isovalue, Vec3& normal, Reconstruction kind) {
-  requireResolved(kind);
-  std::array<int, 3> size{1, 1, 1};
+  std::array<int, 3> size{1, 1, 1};  // hermiteInBox refuses Auto
   size[axis] = 2;
   std::array<std::array<int, 3>, 2> at{};
   at[1][static_cast<std::size_t>(axis)] = 1;
@@ -199,10 +193,9 @@ double cubicEdgeVertex(const PointHermite& start, const PointHermite& end, int a
   // The edge's data from its ends': along it, (value, slope) at both ends; across it along each other axis,
   // (slope, mixed derivative with the edge axis) at both ends.
   const int along = 1 << axis;
-  const std::array<double, 4> e{start[0], start[along], end[0], end[along]};
   // The reference along the edge: a cubic Hermite segment, in powers of t (one variable on [0, 1] with
   // coefficients of the size of the data: no cancellation to fear), evaluated by Horner.
-  const double v0 = e[0] - isovalue, d0 = e[1], v1 = e[2] - isovalue, d1 = e[3];
+  const double v0 = start[0] - isovalue, d0 = start[along], v1 = end[0] - isovalue, d1 = end[along];
   const double k0 = v0, k1 = d0, k2 = -3 * v0 - 2 * d0 + 3 * v1 - d1, k3 = 2 * v0 + d0 - 2 * v1 + d1;
   auto cubic = [&](double t) { return ((k3 * t + k2) * t + k1) * t + k0; };
   auto slope = [&](double t) { return (3 * k3 * t + 2 * k2) * t + k1; };
@@ -246,7 +239,7 @@ double cubicEdgeVertex(const PointHermite& start, const PointHermite& end, int a
   double w[4], dw[4];
   hermiteWeights(best, w, dw);
   Vec3 gradient;
-  gradient[axis] = dw[0] * e[0] + dw[1] * d0 + dw[2] * e[2] + dw[3] * d1;
+  gradient[axis] = dw[0] * start[0] + dw[1] * d0 + dw[2] * end[0] + dw[3] * d1;
   for (int other : cube::otherAxes(axis)) {
     const int across = 1 << other;
     gradient[other] =

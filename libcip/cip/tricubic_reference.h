@@ -58,7 +58,8 @@ Reconstruction parseReconstruction(const std::string& text);
 /// isovertices read: 1 for Monotone (limited first differences, and mixed ones of those), 4 for Central8. A
 /// brick of a sparse volume needs that many points around its cells for its references to be the whole
 /// volume's (VdbReadOptions::apron); with fewer, its samples are extended at its border as at the volume's.
-/// Auto: 4, enough for either (and for the estimate that chooses).
+/// Auto: 4, enough for either (and for the estimate that chooses). Defined beside the stencils, in
+/// point_hermite.cpp.
 int referenceReach(Reconstruction kind);
 
 /// The reference's data at one grid point, index dx + 2 dy + 4 dz with d = 1 for a derivative along that
