@@ -26,8 +26,8 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
                     {"last_round_undone", s.fitting->lastRoundUndone},
                     {"blended_isovertices", s.fitting->blendedVertices},
                     {"unresolved_cells", s.fitting->unresolvedCells.size()}};
-    if (s.normals != "exact") {
-      j["fitting"]["reconstruction"] = toString(s.fitting->reconstruction);
+    if (m.reconstruction) {
+      j["fitting"]["reconstruction"] = toString(*m.reconstruction);
       if (s.fitting->sampling.cells > 0) {
         // Infinite (cubic data) is written as null: JSON has no infinity.
         const double wavelength = s.fitting->sampling.wavelength;

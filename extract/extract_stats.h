@@ -21,10 +21,10 @@ struct ExtractStats {
 
 /// Writes the stats and the model's counts (non-empty cells, isovertices, corners, loops-per-cell histogram)
 /// as JSON, atomically; for the fitted method also "fitting": rounds (and whether the last one was undone),
-/// blended isovertices and the cells left without a sign-correct coefficient, and, unless normals are exact,
-/// the reconstruction of the reference used and, when auto chose it, "sampling": the effective wavelength
-/// (null when infinite), the sixth-to-fourth difference ratio and the cells measured
-/// (reconstruction_choice.h).
+/// blended isovertices and the cells left without a sign-correct coefficient, and, when the model followed a
+/// reference of the samples (Model::reconstruction: not with exact normals), the reconstruction of it and,
+/// when auto chose it, "sampling": the effective wavelength (null when infinite), the sixth-to-fourth
+/// difference ratio and the cells measured (reconstruction_choice.h).
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

@@ -169,20 +169,18 @@ int run(const Options& opt) {
           "%zu cells have no coefficient that keeps the reference's sign everywhere checked; they may "
           "show small wrong-sign regions (docs/method.md)\n",
           unresolved);
-    const bool sampledReference = stats.fitting && build.normals != cip::NormalMode::Exact;
     // On smooth data central8 leaves a few in 10^4 cells so; steps (CT) make it ring, and many more.
-    if (sampledReference && stats.fitting->reconstruction == cip::Reconstruction::Central8 &&
-        unresolved * 1000 > model.cells.size())
+    if (model.reconstruction == cip::Reconstruction::Central8 && unresolved * 1000 > model.cells.size())
       std::fprintf(stderr,
                    "that is %.2f %% of the cells: the data look too steep for the central8 reconstruction; "
                    "--reconstruction monotone follows steps\n",
                    100.0 * static_cast<double>(unresolved) / static_cast<double>(model.cells.size()));
-    if (sampledReference && build.reconstruction == cip::Reconstruction::Auto &&
+    if (model.reconstruction && build.reconstruction == cip::Reconstruction::Auto &&
         stats.fitting->sampling.cells > 0)
       std::fprintf(stderr,
                    "reference: %s (samples near the surface: effective wavelength %.2f samples; central8 "
                    "from %.1f)\n",
-                   cip::toString(stats.fitting->reconstruction), stats.fitting->sampling.wavelength,
+                   cip::toString(*model.reconstruction), stats.fitting->sampling.wavelength,
                    cip::kCentral8Wavelength);
   }
   if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, model);
