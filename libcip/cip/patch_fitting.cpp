@@ -30,16 +30,21 @@ constexpr int kFaceLattice = 7, kCellLattice = 6, kOpenFaceLattice = 5;
 /// Samples closer than this to the reference surface (first-order estimate |f| / |grad f|, voxels) are not
 /// checked.
 constexpr double kMarginVoxels = 0.35;
-/// Lattice coordinates of the checks: n equally spaced points from kLatticeInset / (n - 1 + 2 kLatticeInset)
-/// to its mirror image, i.e. closer to the faces than (a + 1/2) / n, where the central term is strongest far
-/// from the bounding planes and wrong signs appear first.
-constexpr double kLatticeInset = 0.25;
-constexpr double latticeStep(int n) {
-  return 1.0 / (n - 1 + 2 * kLatticeInset);
-}
-constexpr double latticeCoord(int i, int n) {
-  return (i + kLatticeInset) * latticeStep(n);
-}
+/// The coordinates of a check lattice along each axis of a cell or face (the lattice templates below take
+/// one): N points `step` apart, the first InsetQuarters / 4 steps in. The checks use n equally spaced points
+/// from 1/4 step to its mirror image (step 1 / (n - 1/2)), i.e. closer to the faces than (a + 1/2) / n, where
+/// the central term is strongest far from the bounding planes and wrong signs appear first.
+template <int N, int StepOf, int InsetQuarters>
+struct LatticeAxis {
+  static constexpr int n = N;
+  static constexpr double step = 1.0 / (StepOf - 1 + 2 * 0.25);  ///< the spacing of StepOf inset points
+  static constexpr double coord(int i) { return (i + 0.25 * InsetQuarters) * step; }
+};
+using CellAxis = LatticeAxis<kCellLattice, kCellLattice, 1>;
+using FaceAxis = LatticeAxis<kFaceLattice, kFaceLattice, 1>;
+using OpenFaceAxis = LatticeAxis<kOpenFaceLattice, kOpenFaceLattice, 1>;
+/// The points halfway between those of CellAxis: with it, a body-centred lattice (see fitCell).
+using StaggeredCellAxis = LatticeAxis<kCellLattice - 1, kCellLattice, 3>;
 /// Samples within kMarginVoxels of the reference surface by the first-order estimate are checked anyway if
 /// the patch gives them the wrong sign and Newton steps on the reference do not reach its surface within this
 /// many voxels (the margin of countSpuriousCells is 0.5).
@@ -52,13 +57,13 @@ constexpr std::size_t kBlockCells = 512;
 constexpr double kRidge = 1e-3;
 
 /// Hermite weights at the n lattice coordinates (the same on every axis).
-template <int n>
+template <class Axis, int n = Axis::n>
 struct LatticeWeights {
   double w[n][4];
   double byIndex[4][n];  ///< w transposed: weight of Hermite index k at lattice point i is byIndex[k][i]
   LatticeWeights() {
     for (int i = 0; i < n; ++i) {
-      hermiteWeights(latticeCoord(i, n), w[i], nullptr);
+      hermiteWeights(Axis::coord(i), w[i], nullptr);
       for (int k = 0; k < 4; ++k) byIndex[k][i] = w[i][k];
     }
   }
@@ -70,14 +75,14 @@ struct LatticeWeights {
 
 /// World coordinates of the n lattice coordinates along each axis of an analytic reference's cell (as
 /// CellReference::value maps cell-local points).
-template <int n>
+template <class Axis, int n = Axis::n>
 struct WorldLattice {
   double coordinate[3][n];
   explicit WorldLattice(const CellReference& ref) {
     for (int axis = 0; axis < 3; ++axis)
       for (int i = 0; i < n; ++i)
-        coordinate[axis][i] = ref.geometry->origin[axis] +
-                              ref.geometry->spacing[axis] * (ref.origin[axis] + latticeCoord(i, n));
+        coordinate[axis][i] =
+            ref.geometry->origin[axis] + ref.geometry->spacing[axis] * (ref.origin[axis] + Axis::coord(i));
   }
 };
 
@@ -91,14 +96,14 @@ void analyticLattice(const CellReference& ref, const double* const coordinate[3]
 }
 
 /// The tricubic interpolant (Hermite data `hermite` as in CellReference, minus `isovalue`) on the n^3
-/// lattice of latticeCoord points in line order: point i along axis L on line (p, q) of axes P, Q at index
+/// lattice of the lattice points in line order: point i along axis L on line (p, q) of axes P, Q at index
 /// i + n (p + n q). Contracted one axis at a time, Q, P, then L, each pass over contiguous arrays so that it
 /// vectorises (the weights are the same on every axis).
-template <int n>
+template <class Axis, int n = Axis::n>
 CIP_VECTOR_CLONES void tricubicLatticeInLineOrder(const double* hermite, double isovalue, int L, int P, int Q,
                                                   double* out) {
   // A local copy: `out` cannot alias it, so the passes stay vectorised.
-  const LatticeWeights<n> weights = LatticeWeights<n>::get();
+  const LatticeWeights<Axis> weights = LatticeWeights<Axis>::get();
   const auto& w = weights.w;
   constexpr int stride[3] = {1, 4, 16};
   double h[4][16];  // [Q index][L index + 4 P index]
@@ -126,14 +131,14 @@ CIP_VECTOR_CLONES void tricubicLatticeInLineOrder(const double* hermite, double 
     }
 }
 
-/// Reference values at the cell lattice (latticeCoord per axis) in the line order of PatchLines along axis
+/// Reference values at the cell lattice (CellAxis per axis) in the line order of PatchLines along axis
 /// L (lattice point i along L on line (p, q) of the other axes at index i + n (p + n q)); an analytic
 /// reference is evaluated through valuesOnLattice.
-template <int n>
+template <class Axis, int n = Axis::n>
 void referenceCellLattice(const CellReference& ref, int L, double* out) {
   const auto other = cube::otherAxes(L);
   if (ref.field) {
-    const WorldLattice<n> world(ref);
+    const WorldLattice<Axis> world(ref);
     const double* coordinate[3] = {world.coordinate[0], world.coordinate[1], world.coordinate[2]};
     std::array<int, 3> stride;
     stride[L] = 1;
@@ -142,28 +147,28 @@ void referenceCellLattice(const CellReference& ref, int L, double* out) {
     analyticLattice(ref, coordinate, {n, n, n}, stride, out);
     return;
   }
-  tricubicLatticeInLineOrder<n>(ref.hermite.data(), ref.isovalue, L, other[0], other[1], out);
+  tricubicLatticeInLineOrder<Axis>(ref.hermite.data(), ref.isovalue, L, other[0], other[1], out);
 }
 
 /// Cell-local position of lattice point (a, b) of face f (face frame: a along otherAxes[0], b along
 /// otherAxes[1]).
-template <int n>
+template <class Axis, int n = Axis::n>
 Vec3 faceLatticePoint(int f, int a, int b) {
   const int axis = cube::faceAxis(f);
   const auto uv = cube::otherAxes(axis);
   Vec3 x;
   x[axis] = cube::faceSide(f);
-  x[uv[0]] = latticeCoord(a, n);
-  x[uv[1]] = latticeCoord(b, n);
+  x[uv[0]] = Axis::coord(a);
+  x[uv[1]] = Axis::coord(b);
   return x;
 }
 
 /// The bicubic Hermite interpolant of face data `face` ([u index][v index], Hermite indices as in
-/// CellReference) minus `isovalue` on the n x n lattice of latticeCoord points (index a + n b): contracted
+/// CellReference) minus `isovalue` on the n x n lattice of the lattice points (index a + n b): contracted
 /// along u, then v, each pass over contiguous arrays so that it vectorises.
-template <int n>
+template <class Axis, int n = Axis::n>
 CIP_VECTOR_CLONES void bicubicLattice(const double (&face)[4][4], double isovalue, double* value) {
-  const LatticeWeights<n> weights = LatticeWeights<n>::get();  // a local copy, as above
+  const LatticeWeights<Axis> weights = LatticeWeights<Axis>::get();  // a local copy, as above
   const auto& w = weights.w;
   const auto& wt = weights.byIndex;
   double along[4][n];  // contracted along u, per v-Hermite index
@@ -179,12 +184,12 @@ CIP_VECTOR_CLONES void bicubicLattice(const double (&face)[4][4], double isovalu
 
 /// Reference values minus the isovalue on face f at its lattice (index a + n b), from the in-plane Hermite
 /// data of the face.
-template <int n>
+template <class Axis, int n = Axis::n>
 void referenceFaceLattice(const CellReference& ref, int f, double* value) {
   const int axis = cube::faceAxis(f), side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
   if (ref.field) {
-    const WorldLattice<n> world(ref);
+    const WorldLattice<Axis> world(ref);
     const double plane = ref.geometry->origin[axis] + ref.geometry->spacing[axis] * (ref.origin[axis] + side);
     const double* coordinate[3];
     std::array<int, 3> count, stride;
@@ -205,7 +210,7 @@ void referenceFaceLattice(const CellReference& ref, int f, double* value) {
   for (int ia = 0; ia < 4; ++ia)
     for (int jb = 0; jb < 4; ++jb)
       face[ia][jb] = ref.hermite[static_cast<std::size_t>(ia * su + jb * sv + 2 * side * sn)];
-  bicubicLattice<n>(face, ref.isovalue, value);
+  bicubicLattice<Axis>(face, ref.isovalue, value);
 }
 
 /// The reference gradient (per local unit) at point (u, v) of face f (face frame), as ref.gradient there but
@@ -270,12 +275,12 @@ double squares(int m, double t) {
 
 /// The n lattice coordinates and the products of squared face planes (squares) at them, per pattern: the
 /// same for every cell and face, so computed once.
-template <int n>
+template <class Axis, int n = Axis::n>
 struct LatticeSquares {
   double t[n], sq[4][n];
   LatticeSquares() {
     for (int i = 0; i < n; ++i) {
-      t[i] = latticeCoord(i, n);
+      t[i] = Axis::coord(i);
       for (int m = 0; m < 4; ++m) sq[m][i] = squares(m, t[i]);
     }
   }
@@ -332,14 +337,14 @@ struct LinearTerms {
 ///   valueWithoutCentral(x) = sum_m s_m(x) (A_m[p, q] + x B_m[p, q]),  centralBasis(x) = s_c(x) C[p, q],
 /// with s_m(x) the product of the squared face planes across L selected by m (bit 0: plane x = 0, bit 1: x =
 /// 1). Building A, B, C costs O(terms n^2); each lattice point or fit point on a line then costs a few flops.
-template <int n>
+template <class Axis, int n = Axis::n>
 class PatchLines {
  public:
   PatchLines(const LinearTerms& terms, int lineAxis) : axis_(lineAxis), other_(cube::otherAxes(lineAxis)) {
     stride_[axis_] = 1;
     stride_[other_[0]] = n;
     stride_[other_[1]] = n * n;
-    const LatticeSquares<n>& table = LatticeSquares<n>::get();
+    const LatticeSquares<Axis>& table = LatticeSquares<Axis>::get();
     std::copy(table.t, table.t + n, t_);
     std::copy(&table.sq[0][0], &table.sq[0][0] + 4 * n, &s_[0][0]);
     // A term c (n . x + o) s_mL(x_L) s_mP(x_P) s_mQ(x_Q) adds s_mP[p] (t[p] X[q] + Y[q]) to A_mL[p, q] and
@@ -386,9 +391,9 @@ class PatchLines {
   /// Cell-local position of lattice point `index`.
   Vec3 point(int index) const {
     Vec3 x;
-    x[axis_] = latticeCoord(index % n, n);
-    x[other_[0]] = latticeCoord(index / n % n, n);
-    x[other_[1]] = latticeCoord(index / (n * n), n);
+    x[axis_] = Axis::coord(index % n);
+    x[other_[0]] = Axis::coord(index / n % n);
+    x[other_[1]] = Axis::coord(index / (n * n));
     return x;
   }
   /// Gradient (per local unit) of lattice values r at lattice point `index`, by central differences
@@ -399,7 +404,7 @@ class PatchLines {
     Vec3 g;
     for (int k = 0; k < 3; ++k) {
       const int up = c[k] + 1 < n ? 1 : 0, down = c[k] > 0 ? 1 : 0, step = stride_[axes[k]];
-      g[axes[k]] = (r[index + up * step] - r[index - down * step]) / (latticeStep(n) * (up + down));
+      g[axes[k]] = (r[index + up * step] - r[index - down * step]) / (Axis::step * (up + down));
     }
     return g;
   }
@@ -450,12 +455,12 @@ class PatchLines {
 
 /// valueWithoutCentral and centralBasis of a patch on face f's lattice (face frame, index a + n b), by
 /// separable products as in PatchLines.
-template <int n>
+template <class Axis, int n = Axis::n>
 void patchFaceLattice(const LinearTerms& terms, int f, double* value, double* basis) {
   const int axis = cube::faceAxis(f);
   const double side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
-  const LatticeSquares<n> table = LatticeSquares<n>::get();  // a local copy: `value` cannot alias it
+  const LatticeSquares<Axis> table = LatticeSquares<Axis>::get();  // a local copy: `value` cannot alias it
   const auto& t = table.t;
   const auto& sq = table.sq;
   // A term adds su[a] (t[a] X[b] + Y[b]) with X = across sv n_u and Y = across sv (constant + n_v t): the
@@ -523,12 +528,18 @@ struct LatticeLayout {
   int n = 0, dims = 0;
   std::array<int, 3> stride{};
   std::array<double, 3> step{};
-  /// Lattice over cell axes `axes` (lattice axis k along cell axis axes[k]), reference metric `metric`.
-  LatticeLayout(int points, int numAxes, const int* axes, const Vec3& metric) : n(points), dims(numAxes) {
-    for (int k = 0, s = 1; k < dims; ++k, s *= n) {
-      stride[static_cast<std::size_t>(k)] = s;
-      step[static_cast<std::size_t>(k)] = latticeStep(n) / metric[axes[k]];
+  /// Lattice of Axis points over cell axes `axes` (lattice axis k along cell axis axes[k]), reference metric
+  /// `metric`.
+  template <class Axis>
+  static LatticeLayout of(int numAxes, const int* axes, const Vec3& metric) {
+    LatticeLayout out;
+    out.n = Axis::n;
+    out.dims = numAxes;
+    for (int k = 0, s = 1; k < numAxes; ++k, s *= Axis::n) {
+      out.stride[static_cast<std::size_t>(k)] = s;
+      out.step[static_cast<std::size_t>(k)] = Axis::step / metric[axes[k]];
     }
+    return out;
   }
 };
 
@@ -551,13 +562,14 @@ bool neighbourCrosses(const double* r, int index, const LatticeLayout& lattice, 
 
 /// faceRestriction at the face lattice (index a + n b), by separable products: the perpendicular planes of
 /// canonical edges 0, 1 depend on v only (v, 1 - v), those of edges 2, 3 on u only (u, 1 - u).
-template <int n>
+template <class Axis, int n = Axis::n>
 CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face,
                                               std::array<double, n * n>& cornerPart,
                                               std::array<double, n * n>& sideBasis) {
   // The squared perpendicular plane of canonical edge j at lattice coordinate i, and per edge set the
   // products of those of its u-dependent and its v-dependent edges.
-  const LatticeSquares<n> table = LatticeSquares<n>::get();  // a local copy: the outputs cannot alias it
+  const LatticeSquares<Axis> table =
+      LatticeSquares<Axis>::get();  // a local copy: the outputs cannot alias it
   const auto& t = table.t;
   const double* const square[4] = {table.sq[1], table.sq[2], table.sq[1], table.sq[2]};  // t^2, (1 - t)^2
   auto products = [&](unsigned edges, double* u, double* v) {
@@ -604,10 +616,11 @@ struct FaceResult {
 /// ambiguous-face pairings `pairing03` and reference `ref`.
 FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, const CellReference& ref) {
   FaceCrossings fc = faceCrossingsOf(patch, f, (pairing03 >> f) & 1);
-  constexpr int n = kFaceLattice;
+  using Axis = FaceAxis;
+  constexpr int n = Axis::n;
   std::array<double, n * n> r, cornerPart, sideBasis;
-  referenceFaceLattice<n>(ref, f, r.data());
-  faceRestrictionLattice<n>(fc, cornerPart, sideBasis);
+  referenceFaceLattice<Axis>(ref, f, r.data());
+  faceRestrictionLattice<Axis>(fc, cornerPart, sideBasis);
   // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
   double num = 0, den = 0;
   int fitCount = 0;
@@ -630,9 +643,9 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   const std::uint64_t alongV = (signs ^ (signs >> n)) & ((std::uint64_t{1} << (n * (n - 1))) - 1);
   for (std::uint64_t pairs = alongU | alongV; pairs; pairs &= pairs - 1) {
     const int k = __builtin_ctzll(pairs), a = k % n, b = k / n;
-    const Vec2 q(latticeCoord(a, n), latticeCoord(b, n));
-    if ((alongU >> k) & 1) addFit(q, r[k], Vec2(latticeCoord(a + 1, n), q.y()), r[k + 1]);
-    if ((alongV >> k) & 1) addFit(q, r[k], Vec2(q.x(), latticeCoord(b + 1, n)), r[k + n]);
+    const Vec2 q(Axis::coord(a), Axis::coord(b));
+    if ((alongU >> k) & 1) addFit(q, r[k], Vec2(Axis::coord(a + 1), q.y()), r[k + 1]);
+    if ((alongV >> k) & 1) addFit(q, r[k], Vec2(q.x(), Axis::coord(b + 1)), r[k + n]);
   }
   if (fitCount == 0) {
     // The reference curve passes between the samples (close to a face vertex): use the side points instead.
@@ -646,16 +659,16 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   const double dCentre = centreSquares(fc.crossed);  // faceRestriction(fc, (0.5, 0.5)).sideBasis
   den += kRidge * dCentre * dCentre * std::max(1, fitCount);
   const SignSamples samples{r.data(), cornerPart.data(), sideBasis.data(), n * n};
-  const LatticeLayout faceLayout(n, 2, cube::otherAxes(cube::faceAxis(f)).data(), ref.metric);
+  const LatticeLayout faceLayout =
+      LatticeLayout::of<Axis>(2, cube::otherAxes(cube::faceAxis(f)).data(), ref.metric);
   const SignedCoefficient sc = solveSignConstraints(
       -num / den, samples,
       [&](int i) {
-        return farFromSurface(ref, r[i],
-                              faceGradient(ref, f, latticeCoord(i % n, n), latticeCoord(i / n, n)));
+        return farFromSurface(ref, r[i], faceGradient(ref, f, Axis::coord(i % n), Axis::coord(i / n)));
       },
       [&](int i) {
         return !neighbourCrosses(r.data(), i, faceLayout, kVerifiedVoxels) &&
-               !referenceSurfaceWithin(ref, faceLatticePoint<n>(f, i % n, i / n), r[i], kVerifiedVoxels);
+               !referenceSurfaceWithin(ref, faceLatticePoint<Axis>(f, i % n, i / n), r[i], kVerifiedVoxels);
       });
   FaceResult out;
   out.ok = sc.feasible;
@@ -674,7 +687,8 @@ struct CellResult {
 /// samples).
 CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
                    bool fallBackToLeastContradicted = false) {
-  constexpr int n = kCellLattice, nf = kOpenFaceLattice;
+  using Axis = CellAxis;
+  constexpr int n = Axis::n, nf = OpenFaceAxis::n;
   constexpr int kLattice = n * n * n;
   // Samples: the inset cell lattice, then the lattices of the cell's faces that are not bounding planes (no
   // crossing on their edges): the cell across has no patch there or none that joins this one, so a wrong
@@ -688,15 +702,15 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   int fitAxis = 0;
   meanNormal.cwiseAbs().maxCoeff(&fitAxis);
   const LinearTerms terms(patch);
-  const PatchLines<n> lines(terms, fitAxis);
-  referenceCellLattice<n>(ref, fitAxis, r.data());
+  const PatchLines<Axis> lines(terms, fitAxis);
+  referenceCellLattice<Axis>(ref, fitAxis, r.data());
   lines.lattice(value.data(), basis.data());
   for (int f = 0; f < 6; ++f) {
     if ((patch.faceMask >> f) & 1) continue;
     const int offset = kLattice + nf * nf * numOpen;
     openFace[static_cast<std::size_t>(numOpen++)] = f;
-    referenceFaceLattice<nf>(ref, f, r.data() + offset);
-    patchFaceLattice<nf>(terms, f, value.data() + offset, basis.data() + offset);
+    referenceFaceLattice<OpenFaceAxis>(ref, f, r.data() + offset);
+    patchFaceLattice<OpenFaceAxis>(terms, f, value.data() + offset, basis.data() + offset);
   }
   // Sample i >= kLattice: its open face (index into openFace) and its index on that face's lattice.
   auto openSample = [&](int i) {
@@ -705,7 +719,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   auto position = [&](int i) {
     if (i < kLattice) return lines.point(i);
     const auto [face, j] = openSample(i);
-    return faceLatticePoint<nf>(openFace[static_cast<std::size_t>(face)], j % nf, j / nf);
+    return faceLatticePoint<OpenFaceAxis>(openFace[static_cast<std::size_t>(face)], j % nf, j / nf);
   };
   // Least-squares fit to the reference surface points between lattice neighbours along the fit axis (linear
   // interpolation of the reference), where the patch is evaluated exactly.
@@ -723,7 +737,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
         const double r0 = r[static_cast<std::size_t>(lines.index(i, p, q))];
         const double r1 = r[static_cast<std::size_t>(lines.index(i + 1, p, q))];
         double b;
-        const double v = lines.at(latticeCoord(i, n) + r0 / (r0 - r1) * latticeStep(n), p, q, b);
+        const double v = lines.at(Axis::coord(i) + r0 / (r0 - r1) * Axis::step, p, q, b);
         num += v * b;
         den += b * b;
         ++fitCount;
@@ -741,13 +755,13 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
       g = lines.gradient(r.data(), i);
     } else {
       const auto [face, j] = openSample(i);
-      g = faceGradient(ref, openFace[static_cast<std::size_t>(face)], latticeCoord(j % nf, nf),
-                       latticeCoord(j / nf, nf));
+      g = faceGradient(ref, openFace[static_cast<std::size_t>(face)], OpenFaceAxis::coord(j % nf),
+                       OpenFaceAxis::coord(j / nf));
     }
     return farFromSurface(ref, r[static_cast<std::size_t>(i)], g);
   };
   const int lineAxes[3] = {fitAxis, cube::otherAxes(fitAxis)[0], cube::otherAxes(fitAxis)[1]};
-  const LatticeLayout cellLayout(n, 3, lineAxes, ref.metric);
+  const LatticeLayout cellLayout = LatticeLayout::of<Axis>(3, lineAxes, ref.metric);
   auto confirmFar = [&](int i) {
     bool near;
     if (i < kLattice) {
@@ -756,7 +770,7 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
       const auto [face, j] = openSample(i);
       const auto uv = cube::otherAxes(cube::faceAxis(openFace[static_cast<std::size_t>(face)]));
       near = neighbourCrosses(r.data() + kLattice + face * nf * nf, j,
-                              LatticeLayout(nf, 2, uv.data(), ref.metric), kVerifiedVoxels);
+                              LatticeLayout::of<OpenFaceAxis>(2, uv.data(), ref.metric), kVerifiedVoxels);
     }
     return !near &&
            !referenceSurfaceWithin(ref, position(i), r[static_cast<std::size_t>(i)], kVerifiedVoxels);
