@@ -147,6 +147,63 @@ TEST(SignConstraints, NearSamplesCountOnlyWhenConfirmedFar) {
   EXPECT_GT(confirmations, 100);
 }
 
+// A solver called again with more samples keeps what it knows of the first ones: with every sample counting
+// it gives the clamp into the interval of all of them; with near samples, every callback is asked at most
+// once per sample over both calls, the samples that count have the right sign, and every sample left on the
+// wrong side is among confirmedNear().
+TEST(SignConstraints, MoreSamplesInASecondCall) {
+  std::mt19937 rng(13);
+  int secondCalls = 0, nearWrong = 0;
+  for (int trial = 0; trial < 3000; ++trial) {
+    const bool withNear = trial % 2 == 1;
+    const RandomSamples s = randomSamples(rng, 20 + trial % 200, withNear ? 0.4 : 0.0);
+    const double w = std::uniform_real_distribution<double>(-4, 4)(rng);
+    SignSamples first = s.view();
+    first.count = std::uniform_int_distribution<int>(1, s.view().count)(rng);
+    std::vector<int> askedFar(s.r.size(), 0), askedConfirm(s.r.size(), 0);
+    auto far = [&](int i) {
+      ++askedFar[static_cast<std::size_t>(i)];
+      return static_cast<bool>(s.far[static_cast<std::size_t>(i)]);
+    };
+    auto confirmFar = [&](int i) {
+      ++askedConfirm[static_cast<std::size_t>(i)];
+      return i % 2 == 1;
+    };
+    SignConstraintSolver solver;
+    solver.reset();
+    if (!solver.solve(w, first, far, confirmFar).feasible) continue;
+    const SignedCoefficient both = solver.solve(w, s.view(), far, confirmFar);
+    ++secondCalls;
+    for (std::size_t i = 0; i < s.r.size(); ++i) {
+      EXPECT_LE(askedFar[i], 1) << trial;
+      EXPECT_LE(askedConfirm[i], 1) << trial;
+    }
+    if (!withNear) {
+      CoefficientInterval all;
+      for (std::size_t i = 0; i < s.r.size(); ++i) all.add(s.r[i] > 0, s.a[i], s.b[i]);
+      ASSERT_EQ(both.feasible, all.feasible()) << trial;
+      if (both.feasible) {
+        EXPECT_EQ(both.value, all.clamp(w)) << trial;
+      }
+      continue;
+    }
+    if (!both.feasible) continue;
+    int wrong = 0;
+    for (std::size_t i = 0; i < s.r.size(); ++i) {
+      const double v = s.a[i] + both.value * s.b[i];
+      const bool right = v == 0 || (v > 0) == (s.r[i] > 0);
+      if (s.far[i] || (askedConfirm[i] && i % 2 == 1)) {
+        EXPECT_TRUE(right) << trial << " sample " << i;
+      }
+      wrong += !right;
+    }
+    EXPECT_GE(solver.confirmedNear(), wrong) << trial;
+    nearWrong += wrong;
+  }
+  EXPECT_GT(secondCalls, 500);
+  EXPECT_GT(nearWrong, 50);
+}
+
 TEST(SignConstraints, ExaminesOnlySamplesTheValueFails) {
   // Every sample is met by w = 0 with the margin: neither callback runs and w stays.
   const std::vector<double> r{1, -1, 2}, a{1, -1, 0.5}, b{1, 2, 0};

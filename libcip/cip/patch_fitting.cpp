@@ -4,10 +4,10 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <optional>
 #include <vector>
 
 #include "cip/cube_topology.h"
@@ -27,6 +27,10 @@ constexpr int kMaxLevel = static_cast<int>(kBlend.size()) - 1;
 /// Samples per axis of the sign checks: face lattice (kFaceLattice^2), cell lattice (kCellLattice^3) and the
 /// lattice on the faces of a cell that are not bounding planes (kOpenFaceLattice^2).
 constexpr int kFaceLattice = 7, kCellLattice = 6, kOpenFaceLattice = 5;
+/// Samples near the surface that the clamping of a cell's coefficient found on the wrong side, from which on
+/// the staggered lattice is checked too (fitCell). About 5 % of the cells on CT and fog volumes reach 6; 3
+/// (a quarter of the cells) removed no more wrong-sign cells, 12 fewer.
+constexpr int kStaggeredTrigger = 6;
 /// Samples closer than this to the reference surface (first-order estimate |f| / |grad f|, voxels) are not
 /// checked.
 constexpr double kMarginVoxels = 0.35;
@@ -693,7 +697,10 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   // Samples: the inset cell lattice, then the lattices of the cell's faces that are not bounding planes (no
   // crossing on their edges): the cell across has no patch there or none that joins this one, so a wrong
   // sign on the face itself would show as a sheet, and the cell lattice stays inset from the faces.
-  std::array<double, kLattice + 6 * nf * nf> r, value, basis;
+  // After them, where the cell lattice suggests it (see below), the staggered lattice.
+  using Staggered = StaggeredCellAxis;
+  constexpr int kStaggered = Staggered::n * Staggered::n * Staggered::n;
+  std::array<double, kLattice + 6 * nf * nf + kStaggered> r, value, basis;
   std::array<int, 6> openFace{};
   int numOpen = 0;
   // Fit points lie on the lattice lines along the axis closest to the mean corner normal.
@@ -716,8 +723,11 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   auto openSample = [&](int i) {
     return std::array<int, 2>{(i - kLattice) / (nf * nf), (i - kLattice) % (nf * nf)};
   };
+  const int staggeredBegin = kLattice + nf * nf * numOpen;
+  std::optional<PatchLines<Staggered>> staggeredLines;
   auto position = [&](int i) {
     if (i < kLattice) return lines.point(i);
+    if (i >= staggeredBegin) return staggeredLines->point(i - staggeredBegin);
     const auto [face, j] = openSample(i);
     return faceLatticePoint<OpenFaceAxis>(openFace[static_cast<std::size_t>(face)], j % nf, j / nf);
   };
@@ -753,6 +763,8 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
     Vec3 g;
     if (i < kLattice) {
       g = lines.gradient(r.data(), i);
+    } else if (i >= staggeredBegin) {
+      g = staggeredLines->gradient(r.data() + staggeredBegin, i - staggeredBegin);
     } else {
       const auto [face, j] = openSample(i);
       g = faceGradient(ref, openFace[static_cast<std::size_t>(face)], OpenFaceAxis::coord(j % nf),
@@ -762,10 +774,14 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   };
   const int lineAxes[3] = {fitAxis, cube::otherAxes(fitAxis)[0], cube::otherAxes(fitAxis)[1]};
   const LatticeLayout cellLayout = LatticeLayout::of<Axis>(3, lineAxes, ref.metric);
+  const LatticeLayout staggeredLayout = LatticeLayout::of<Staggered>(3, lineAxes, ref.metric);
   auto confirmFar = [&](int i) {
     bool near;
     if (i < kLattice) {
       near = neighbourCrosses(r.data(), i, cellLayout, kVerifiedVoxels);
+    } else if (i >= staggeredBegin) {
+      near =
+          neighbourCrosses(r.data() + staggeredBegin, i - staggeredBegin, staggeredLayout, kVerifiedVoxels);
     } else {
       const auto [face, j] = openSample(i);
       const auto uv = cube::otherAxes(cube::faceAxis(openFace[static_cast<std::size_t>(face)]));
@@ -775,8 +791,23 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
     return !near &&
            !referenceSurfaceWithin(ref, position(i), r[static_cast<std::size_t>(i)], kVerifiedVoxels);
   };
-  const SignedCoefficient sc =
-      solveSignConstraints(fitCount > 0 ? -num / den : 0.0, samples, far, confirmFar);
+  const double fitted = fitCount > 0 ? -num / den : 0.0;
+  thread_local SignConstraintSolver solver;
+  solver.reset();
+  SignedCoefficient sc = solver.solve(fitted, samples, far, confirmFar);
+  // A second look, between the lattice points: where the clamping found kStaggeredTrigger or more samples on
+  // the wrong side that lie near the surface, the patch and the reference part ways inside the cell, and a
+  // wrong sign farther out can hide between the lattice points. The staggered lattice (with the cell
+  // lattice, a body-centred one) joins the samples if a coefficient still meets them all; otherwise the cell
+  // keeps the coefficient of its own lattice, so that this look never makes a cell fail.
+  if (sc.feasible && solver.confirmedNear() >= kStaggeredTrigger) {
+    staggeredLines.emplace(terms, fitAxis);
+    referenceCellLattice<Staggered>(ref, fitAxis, r.data() + staggeredBegin);
+    staggeredLines->lattice(value.data() + staggeredBegin, basis.data() + staggeredBegin);
+    const SignSamples all{r.data(), value.data(), basis.data(), staggeredBegin + kStaggered};
+    const SignedCoefficient both = solver.solve(fitted, all, far, confirmFar);
+    if (both.feasible) sc = both;
+  }
   CellResult out;
   out.ok = sc.feasible;
   out.central = sc.feasible ? sc.value : 0.0;

@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <utility>
 #include <vector>
 
 namespace cip {
@@ -85,51 +86,83 @@ struct SignSamples {
 /// branch.
 int slackSweep(const SignSamples& s, double w, std::uint64_t* failing);
 
-/// Clamps the fitted coefficient `w` into the interval of the samples that count:
-///  - `far(i)`: sample i lies farther than the margin from the reference surface (a first-order estimate); it
-///    counts;
-///  - `confirmFar(i)`: asked once for a sample that is not far but to which the clamped value gives the wrong
-///    sign (a + w b against r, no margin); if true, the sample counts from then on.
-/// Both are called only for samples that the current value fails, so they may be expensive.
+/// Clamps fitted coefficients into the interval of the samples that count, keeping what it learnt between
+/// calls (see solve).
+class SignConstraintSolver {
+ public:
+  /// Forgets every sample and the interval.
+  void reset() {
+    state_.clear();
+    interval_ = CoefficientInterval{};
+    confirmedNear_ = 0;
+  }
+  /// Samples found near the surface after the value of some step gave them the wrong sign (confirmFar false):
+  /// every sample that the result gives the wrong sign is among them.
+  int confirmedNear() const { return confirmedNear_; }
+
+  /// Clamps the fitted coefficient `w` into the interval of the samples that count:
+  ///  - `far(i)`: sample i lies farther than the margin from the reference surface (a first-order estimate);
+  ///    it counts;
+  ///  - `confirmFar(i)`: asked once for a sample that is not far but to which the clamped value gives the
+  ///    wrong sign (a + w b against r, no margin); if true, the sample counts from then on.
+  /// Both are called only for samples that the current value fails, so they may be expensive. The samples of
+  /// an earlier call since reset() must be the first ones of `s`: what is known of them is kept (the
+  /// samples that count and the interval, those found near), so a call with more samples asks the callbacks
+  /// only about new samples and about earlier ones that the new value fails and that were never asked. Each
+  /// callback is asked at most once per sample between resets. When every sample counts, the result is that
+  /// of one call with all the samples: the clamp into the interval of all of them.
+  template <class Far, class ConfirmFar>
+  SignedCoefficient solve(double w, const SignSamples& s, Far&& far, ConfirmFar&& confirmFar) {
+    const std::size_t words = (static_cast<std::size_t>(s.count) + 63) / 64;
+    state_.resize(static_cast<std::size_t>(s.count), kUnknown);
+    failing_.resize(words);
+    if (!std::isfinite(w)) w = 0;
+    double value = interval_.feasible() ? interval_.clamp(w) : w;
+    for (;;) {
+      // The sweep over all samples is branch-free; failures are rare and examined below, in index order.
+      if (slackSweep(s, value, failing_.data()) == 0) break;
+      bool added = false;
+      for (std::size_t word = 0; word < words; ++word)
+        for (std::uint64_t bits = failing_[word]; bits; bits &= bits - 1) {
+          const int i = static_cast<int>(64 * word) + __builtin_ctzll(bits);
+          const auto k = static_cast<std::size_t>(i);
+          if (state_[k] == kCounting || state_[k] == kConfirmedNear) continue;
+          if (state_[k] == kUnknown) state_[k] = far(i) ? kCounting : kNear;
+          if (state_[k] == kNear) {
+            const double v = s.a[i] + value * s.b[i];
+            if ((v > 0) == (s.r[i] > 0) || v == 0) continue;
+            state_[k] = confirmFar(i) ? kCounting : kConfirmedNear;
+            confirmedNear_ += state_[k] == kConfirmedNear;
+          }
+          if (state_[k] != kCounting) continue;
+          interval_.add(s.r[i] > 0, s.a[i], s.b[i]);
+          added = true;
+        }
+      if (!added || !interval_.feasible()) break;
+      value = interval_.clamp(w);
+    }
+    SignedCoefficient out;
+    out.feasible = interval_.feasible();
+    out.value = out.feasible ? interval_.clamp(w) : w;
+    if (!std::isfinite(out.value)) out.value = 0;
+    return out;
+  }
+
+ private:
+  // Per sample: unclassified, counting (added), near, near and confirmed near.
+  enum : std::uint8_t { kUnknown, kCounting, kNear, kConfirmedNear };
+  std::vector<std::uint8_t> state_;
+  std::vector<std::uint64_t> failing_;
+  CoefficientInterval interval_;
+  int confirmedNear_ = 0;
+};
+
+/// SignConstraintSolver::solve on its own: the samples `s` alone.
 template <class Far, class ConfirmFar>
 SignedCoefficient solveSignConstraints(double w, const SignSamples& s, Far&& far, ConfirmFar&& confirmFar) {
-  // Per sample: 0 unclassified, 1 counting (added), 2 near, 3 near and confirmed near.
-  enum : std::uint8_t { kUnknown, kCounting, kNear, kConfirmedNear };
-  thread_local std::vector<std::uint8_t> state;
-  thread_local std::vector<std::uint64_t> failing;
-  const std::size_t words = (static_cast<std::size_t>(s.count) + 63) / 64;
-  state.assign(static_cast<std::size_t>(s.count), kUnknown);
-  failing.resize(words);
-  CoefficientInterval interval;
-  if (!std::isfinite(w)) w = 0;
-  double value = w;
-  for (;;) {
-    // The sweep over all samples is branch-free; failures are rare and examined below, in index order.
-    if (slackSweep(s, value, failing.data()) == 0) break;
-    bool added = false;
-    for (std::size_t word = 0; word < words; ++word)
-      for (std::uint64_t bits = failing[word]; bits; bits &= bits - 1) {
-        const int i = static_cast<int>(64 * word) + __builtin_ctzll(bits);
-        const auto k = static_cast<std::size_t>(i);
-        if (state[k] == kCounting || state[k] == kConfirmedNear) continue;
-        if (state[k] == kUnknown) state[k] = far(i) ? kCounting : kNear;
-        if (state[k] == kNear) {
-          const double v = s.a[i] + value * s.b[i];
-          if ((v > 0) == (s.r[i] > 0) || v == 0) continue;
-          state[k] = confirmFar(i) ? kCounting : kConfirmedNear;
-        }
-        if (state[k] != kCounting) continue;
-        interval.add(s.r[i] > 0, s.a[i], s.b[i]);
-        added = true;
-      }
-    if (!added || !interval.feasible()) break;
-    value = interval.clamp(w);
-  }
-  SignedCoefficient out;
-  out.feasible = interval.feasible();
-  out.value = out.feasible ? interval.clamp(w) : w;
-  if (!std::isfinite(out.value)) out.value = 0;
-  return out;
+  thread_local SignConstraintSolver solver;
+  solver.reset();
+  return solver.solve(w, s, std::forward<Far>(far), std::forward<ConfirmFar>(confirmFar));
 }
 
 /// Whether coefficient w gives sample i the wrong sign (a + w b against r; zero counts as wrong).
