@@ -775,14 +775,13 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   };
   const int lineAxes[3] = {fitAxis, cube::otherAxes(fitAxis)[0], cube::otherAxes(fitAxis)[1]};
   const LatticeLayout cellLayout = LatticeLayout::of<Axis>(3, lineAxes, ref.metric);
-  const LatticeLayout staggeredLayout = LatticeLayout::of<Staggered>(3, lineAxes, ref.metric);
   auto confirmFar = [&](int i) {
     bool near;
     if (i < kLattice) {
       near = neighbourCrosses(r.data(), i, cellLayout, kVerifiedVoxels);
     } else if (i >= staggeredBegin) {
-      near =
-          neighbourCrosses(r.data() + staggeredBegin, i - staggeredBegin, staggeredLayout, kVerifiedVoxels);
+      near = neighbourCrosses(r.data() + staggeredBegin, i - staggeredBegin,
+                              LatticeLayout::of<Staggered>(3, lineAxes, ref.metric), kVerifiedVoxels);
     } else {
       const auto [face, j] = openSample(i);
       const auto uv = cube::otherAxes(cube::faceAxis(openFace[static_cast<std::size_t>(face)]));
