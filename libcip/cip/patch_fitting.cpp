@@ -689,7 +689,8 @@ struct CellResult {
 /// The central coefficient of a cell. Where no value meets every counting sample, the result is not ok and
 /// the coefficient is 0, or with `fallBackToLeastContradicted` the value the fewest counting samples
 /// contradict (see below; only for the cells still unresolved after the fallback rounds, as it examines more
-/// samples).
+/// samples). Where only the second look (the staggered lattice) finds no such value, the result is not ok
+/// and the coefficient is that of the cell's own lattice.
 CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
                    bool fallBackToLeastContradicted = false) {
   using Axis = CellAxis;
@@ -798,15 +799,17 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   // A second look, between the lattice points: where the clamping found kStaggeredTrigger or more samples on
   // the wrong side that lie near the surface, the patch and the reference part ways inside the cell, and a
   // wrong sign farther out can hide between the lattice points. The staggered lattice (with the cell
-  // lattice, a body-centred one) joins the samples if a coefficient still meets them all; otherwise the cell
-  // keeps the coefficient of its own lattice, so that this look never makes a cell fail.
+  // lattice, a body-centred one) joins the samples. If no coefficient meets them all, the cell is unresolved,
+  // so that the fallback rounds blend its normals; it keeps the coefficient of its own lattice meanwhile, and
+  // at the end if it stays unresolved.
   if (sc.feasible && solver.confirmedNear() >= kStaggeredTrigger) {
     staggeredLines.emplace(terms, fitAxis);
     referenceCellLattice<Staggered>(ref, fitAxis, r.data() + staggeredBegin);
     staggeredLines->lattice(value.data() + staggeredBegin, basis.data() + staggeredBegin);
     const SignSamples all{r.data(), value.data(), basis.data(), staggeredBegin + kStaggered};
     const SignedCoefficient both = solver.solve(fitted, all, far, confirmFar);
-    if (both.feasible) sc = both;
+    if (!both.feasible) return CellResult{sc.value, false};
+    sc = both;
   }
   CellResult out;
   out.ok = sc.feasible;
