@@ -237,7 +237,14 @@ TEST(SignConstraints, ZeroBasisWithTheWrongSignIsInfeasible) {
 TEST(SignConstraints, FewestViolationsIsTheMinimumOverAllRanges) {
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> unit(0, 1);
-  int withConflicts = 0;
+  int withConflicts = 0, massDecided = 0;
+  // The summed |r| of the counting samples that w contradicts.
+  auto contradictedMass = [](const SignSamples& view, const std::vector<std::uint8_t>& counts, double w) {
+    double mass = 0;
+    for (int i = 0; i < view.count; ++i)
+      if (counts[static_cast<std::size_t>(i)] && contradicts(view, i, w)) mass += std::abs(view.r[i]);
+    return mass;
+  };
   for (int trial = 0; trial < 2000; ++trial) {
     RandomSamples s = randomSamples(rng, 1 + trial % 60, 0.2);
     for (std::size_t i = 0; i < s.r.size(); ++i)
@@ -245,26 +252,40 @@ TEST(SignConstraints, FewestViolationsIsTheMinimumOverAllRanges) {
     std::vector<std::uint8_t> counts(s.r.size());
     for (std::size_t i = 0; i < s.r.size(); ++i) counts[i] = s.far[i];
     const SignSamples view = s.view();
-    // Every range of w between consecutive breakpoints, probed at its midpoint and beyond the ends.
+    // Every range of w between consecutive breakpoints, probed at its midpoint and beyond the ends: the
+    // fewest contradicted samples, and the least contradicted mass among the ranges with that few.
     std::vector<double> breaks;
     for (std::size_t i = 0; i < s.r.size(); ++i)
       if (counts[i] && s.b[i] > 1e-300) breaks.push_back(-s.a[i] / s.b[i]);
     std::sort(breaks.begin(), breaks.end());
-    int best = signViolations(view, counts, breaks.empty() ? 0.0 : breaks.front() - 1);
-    if (!breaks.empty()) best = std::min(best, signViolations(view, counts, breaks.back() + 1));
+    std::vector<double> probes;
+    probes.push_back(breaks.empty() ? 0.0 : breaks.front() - 1);
+    if (!breaks.empty()) probes.push_back(breaks.back() + 1);
     for (std::size_t k = 0; k + 1 < breaks.size(); ++k)
-      if (breaks[k] < breaks[k + 1])
-        best = std::min(best, signViolations(view, counts, 0.5 * (breaks[k] + breaks[k + 1])));
+      if (breaks[k] < breaks[k + 1]) probes.push_back(0.5 * (breaks[k] + breaks[k + 1]));
+    int best = std::numeric_limits<int>::max();
+    for (double w : probes) best = std::min(best, signViolations(view, counts, w));
+    double lightest = std::numeric_limits<double>::infinity(), heaviest = 0;
+    for (double w : probes)
+      if (signViolations(view, counts, w) == best) {
+        lightest = std::min(lightest, contradictedMass(view, counts, w));
+        heaviest = std::max(heaviest, contradictedMass(view, counts, w));
+      }
     withConflicts += best > 0;
+    massDecided += heaviest > lightest * (1 + 1e-6);
     const double w = fewestViolations(view, counts, 0.0);
     ASSERT_EQ(signViolations(view, counts, w), best) << "trial " << trial << " w " << w;
+    EXPECT_NEAR(contradictedMass(view, counts, w), lightest, 1e-9 * (1 + lightest)) << "trial " << trial;
     // 0 is one of the best values: it is the answer (the margin is relative, so no finite end but 0 itself
     // keeps 0 out of its range).
-    if (signViolations(view, counts, 0.0) == best && !std::binary_search(breaks.begin(), breaks.end(), 0.0)) {
+    if (signViolations(view, counts, 0.0) == best &&
+        contradictedMass(view, counts, 0.0) <= lightest * (1 + 1e-12) &&
+        !std::binary_search(breaks.begin(), breaks.end(), 0.0)) {
       EXPECT_EQ(w, 0.0) << "trial " << trial;
     }
   }
   EXPECT_GT(withConflicts, 500);  // the test sees infeasible sets, not only feasible ones
+  EXPECT_GT(massDecided, 40);     // and ties in the count that the contradicted mass decides
 }
 
 // leastContradicted classifies near samples lazily, yet its choice contradicts as few counting samples as

@@ -618,8 +618,12 @@ struct FaceResult {
 };
 
 /// The side coefficient of face f of a cell (its first cell) with corner data `patch` (coefficients unused),
-/// ambiguous-face pairings `pairing03` and reference `ref`.
-FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, const CellReference& ref) {
+/// ambiguous-face pairings `pairing03` and reference `ref`. Where no value meets every counting sample, the
+/// result is not ok and the coefficient is the fit, or with `fallBackToLeastContradicted` the value the
+/// fewest counting samples contradict, nearest to the fit (for the faces still failed after the fallback
+/// rounds).
+FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, const CellReference& ref,
+                   bool fallBackToLeastContradicted = false) {
   FaceCrossings fc = faceCrossingsOf(patch, f, (pairing03 >> f) & 1);
   using Axis = FaceAxis;
   constexpr int n = Axis::n;
@@ -666,18 +670,19 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   const SignSamples samples{r.data(), cornerPart.data(), sideBasis.data(), n * n};
   const LatticeLayout faceLayout =
       LatticeLayout::of<Axis>(2, cube::otherAxes(cube::faceAxis(f)).data(), ref.metric);
-  const SignedCoefficient sc = solveSignConstraints(
-      -num / den, samples,
-      [&](int i) {
-        return farFromSurface(ref, r[i], faceGradient(ref, f, Axis::coord(i % n), Axis::coord(i / n)));
-      },
-      [&](int i) {
-        return !neighbourCrosses(r.data(), i, faceLayout, kVerifiedVoxels) &&
-               !referenceSurfaceWithin(ref, faceLatticePoint<Axis>(f, i % n, i / n), r[i], kVerifiedVoxels);
-      });
+  auto far = [&](int i) {
+    return farFromSurface(ref, r[i], faceGradient(ref, f, Axis::coord(i % n), Axis::coord(i / n)));
+  };
+  auto confirmFar = [&](int i) {
+    return !neighbourCrosses(r.data(), i, faceLayout, kVerifiedVoxels) &&
+           !referenceSurfaceWithin(ref, faceLatticePoint<Axis>(f, i % n, i / n), r[i], kVerifiedVoxels);
+  };
+  const SignedCoefficient sc = solveSignConstraints(-num / den, samples, far, confirmFar);
   FaceResult out;
   out.ok = sc.feasible;
   out.coefficient = sc.value;
+  if (!sc.feasible && fallBackToLeastContradicted)
+    out.coefficient = leastContradicted(sc.value, samples, far, confirmFar);
   return out;
 }
 
@@ -1149,17 +1154,40 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
       }
     std::sort(dirtyCells.begin(), dirtyCells.end());
   }
-  // Cells left without a sign-correct central coefficient take the one the fewest counting samples
+  // Faces left without a sign-correct side coefficient take the one the fewest counting samples contradict
+  // (nearest to the fit) instead of the fit, and their cells' central coefficients are fitted again. Then
+  // cells left without a sign-correct central coefficient take the one the fewest counting samples
   // contradict (nearest to 0) instead of 0.
-  std::vector<std::uint32_t> infeasible;
+  std::vector<std::uint32_t> failedFaces;
+  for (std::size_t i = 0; i < faces.size(); ++i)
+    if (!faceOk[i]) failedFaces.push_back(static_cast<std::uint32_t>(i));
+  tbb::parallel_for(std::size_t(0), failedFaces.size(), [&](std::size_t j) {
+    const FaceEntry& face = faces[failedFaces[j]];
+    const std::size_t c = face.cell[0];
+    CellReference ref;
+    reference(c, ref);
+    faceCoefficient[failedFaces[j]] =
+        fitFace(model.patch(c, loops[c]), model.cells[c].pairing03, face.face[0], ref, true).coefficient;
+  });
+  std::vector<std::uint8_t> refit(numCells, 0);
+  for (std::uint32_t i : failedFaces) {
+    const FaceEntry& face = faces[i];
+    for (int s = 0; s < face.count; ++s) {
+      model.cells[face.cell[s]].faceCoefficient[face.face[s]] = faceCoefficient[i];
+      refit[face.cell[s]] = 1;
+    }
+  }
+  std::vector<std::uint32_t> lastCells;
   for (std::size_t c = 0; c < numCells; ++c)
-    if (!cellOk[c]) infeasible.push_back(static_cast<std::uint32_t>(c));
-  tbb::parallel_for(std::size_t(0), infeasible.size(), [&](std::size_t j) {
-    const std::size_t c = infeasible[j];
+    if (!cellOk[c] || refit[c]) lastCells.push_back(static_cast<std::uint32_t>(c));
+  tbb::parallel_for(std::size_t(0), lastCells.size(), [&](std::size_t j) {
+    const std::size_t c = lastCells[j];
     model.cells[c].central = 0;
     CellReference ref;
     reference(c, ref);
-    model.cells[c].central = fitCell(model.patch(c, loops[c]), ref, true).central;
+    const CellResult cr = fitCell(model.patch(c, loops[c]), ref, true);
+    model.cells[c].central = cr.central;
+    cellOk[c] = cr.ok;
   });
   for (std::size_t v = 0; v < numVertices; ++v) {
     stats.blendedVertices += level[v] > 0;

@@ -116,48 +116,73 @@ int signViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts
 
 double fewestViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double preferred) {
   constexpr double kInf = CoefficientInterval::kInf, kEps = CoefficientInterval::kEps;
-  // Breakpoints with the change in the count when w passes them upwards; `violations` is the count below all.
-  std::vector<std::pair<double, int>> steps;
+  // A breakpoint with the change in the count (and in the summed |r| of the contradicted samples) when w
+  // passes it upwards; `violations` (`mass`) is the count (sum) below all of them.
+  struct Step {
+    double at;
+    int count;
+    double mass;
+    bool operator<(const Step& o) const { return at < o.at; }
+  };
+  std::vector<Step> steps;
   int violations = 0;
+  double mass = 0;
   for (int i = 0; i < s.count; ++i) {
     if (!counts[static_cast<std::size_t>(i)]) continue;
     const bool positive = s.r[i] > 0;
+    const double weight = std::abs(s.r[i]);
     if (!(s.b[i] > 1e-300)) {
-      violations += (s.a[i] > 0) != positive;
+      if ((s.a[i] > 0) != positive) {
+        ++violations;
+        mass += weight;
+      }
       continue;
     }
     const double t = -s.a[i] / s.b[i];
     if (!std::isfinite(t)) continue;
     if (positive) {  // needs w > t
       ++violations;
-      steps.emplace_back(t, -1);
+      mass += weight;
+      steps.push_back({t, -1, -weight});
     } else {  // needs w < t
-      steps.emplace_back(t, +1);
+      steps.push_back({t, +1, weight});
     }
   }
   std::sort(steps.begin(), steps.end());
+  double total = mass;
+  for (const Step& step : steps) total += std::max(step.mass, 0.0);
+  const double tolerance = 1e-12 * total;  // the sums below are running ones
   if (!std::isfinite(preferred)) preferred = 0;
   double best = preferred;
   int bestCount = std::numeric_limits<int>::max();
-  double bestDistance = kInf;
-  auto consider = [&](double lo, double hi, int count) {
+  double bestMass = kInf, bestDistance = kInf;
+  auto consider = [&](double lo, double hi, int count, double weight) {
     const double a = std::isfinite(lo) ? lo + kEps * std::abs(lo) : lo;
     const double b = std::isfinite(hi) ? hi - kEps * std::abs(hi) : hi;
     const double w = a <= b ? std::clamp(preferred, a, b) : 0.5 * (lo + hi);  // a > b: both ends finite
     const double distance = std::abs(w - preferred);
-    if (count < bestCount || (count == bestCount && distance < bestDistance)) {
+    // Fewer contradicted samples first; among as many, the least reference value contradicted (up to the
+    // rounding of the running sums); then the nearest.
+    const bool fewer = count < bestCount;
+    const bool lighter = count == bestCount && weight < bestMass - tolerance;
+    const bool asLight = count == bestCount && !lighter && !(weight > bestMass + tolerance);
+    if (fewer || lighter || (asLight && distance < bestDistance)) {
       best = w;
       bestCount = count;
+      bestMass = weight;
       bestDistance = distance;
     }
   };
   double lo = -kInf;
   for (std::size_t k = 0; k < steps.size();) {
-    consider(lo, steps[k].first, violations);
-    lo = steps[k].first;
-    for (; k < steps.size() && steps[k].first == lo; ++k) violations += steps[k].second;
+    consider(lo, steps[k].at, violations, mass);
+    lo = steps[k].at;
+    for (; k < steps.size() && steps[k].at == lo; ++k) {
+      violations += steps[k].count;
+      mass += steps[k].mass;
+    }
   }
-  consider(lo, kInf, violations);
+  consider(lo, kInf, violations, mass);
   return best;
 }
 

@@ -175,11 +175,14 @@ inline bool contradicts(const SignSamples& s, int i, double w) {
 /// whether sample i counts.
 int signViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double w);
 
-/// For samples without a common coefficient: a coefficient that the fewest counting samples contradict, the
-/// one nearest to `preferred` among such, kept CoefficientInterval::kEps (relative) inside the finite ends of
-/// its range of w (the range's midpoint when it is narrower than that). `counts[i]` says whether sample i
-/// counts. Every counting sample with b > 0 is wrong on one side of its breakpoint -a / b, so the count is a
-/// step function of w and the ranges between consecutive breakpoints are all there is to compare.
+/// For samples without a common coefficient: a coefficient that the fewest counting samples contradict;
+/// among ranges of w with as few, one whose contradicted samples have the least summed |r| (the reference's
+/// own measure of how deep they lie on their side: a noise-level dip of the reference below the isovalue
+/// weighs less than a sample well inside, where counting alone ties); among those, the value nearest to
+/// `preferred`. The value is kept CoefficientInterval::kEps (relative) inside the finite ends of its range of
+/// w (the range's midpoint when it is narrower than that). `counts[i]` says whether sample i counts. Every
+/// counting sample with b > 0 is wrong on one side of its breakpoint -a / b, so the count and the sum are
+/// step functions of w and the ranges between consecutive breakpoints are all there is to compare.
 double fewestViolations(const SignSamples& s, const std::vector<std::uint8_t>& counts, double preferred);
 
 /// fewestViolations for samples classified as solveSignConstraints does: `far(i)` is asked for every sample;

@@ -54,9 +54,9 @@ FidelityMeasures measureFidelity(const std::vector<SurfaceSample>& samples, cons
 
 /// Number of non-empty cells whose patch has the wrong sign (against truth - isovalue) at some point of a
 /// lattice x lattice x lattice grid in the cell that lies more than `marginVoxels` from the true surface:
-/// cells that would show a spurious sheet or bubble. A disagreement counts unless a Newton projection onto
-/// the true surface lands within the margin or a ball of radius `marginVoxels` around the point (sampled 1/8
-/// of the radius apart) holds a point of the other true sign.
+/// cells that would show a spurious sheet or bubble. A disagreement counts unless Newton steps towards the
+/// true surface (up to 100) reach, within the margin, the surface or the other true sign, or a ball of radius
+/// `marginVoxels` around the point (sampled 1/8 of the radius apart) holds a point of the other true sign.
 std::int64_t countSpuriousCells(const Model& model, const ScalarField& truth, int lattice = 8,
                                 double marginVoxels = 0.5);
 
