@@ -3,6 +3,7 @@
 #include <malloc.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -235,12 +236,87 @@ void reconstructionTable(const std::string& shared, bool quick) {
   }
 }
 
+/// Marschner-Lobb's normal errors by how well the grid samples its ripple where the true surface is. The
+/// ripple cos(2 pi fM cos(pi r / 2)) (r: distance from the z axis) has the local frequency
+/// fM (pi / 2) |sin(pi r / 2)| per unit along r; the grid of N cells on [-1, 1] carries at most N / 4 (its
+/// Nyquist limit). Each sample is binned by that ratio at its projection onto the true surface; above 1 the
+/// samples alias there, and no reconstruction of them knows the normal.
+void aliasingTable(bool quick) {
+  constexpr double kPi = 3.14159265358979323846, fM = 6;  // the field's ripple frequency (analytic_field.cpp)
+  constexpr std::array<double, 3> kEdges{0.7, 0.85, 1.0};
+  constexpr int kBins = static_cast<int>(kEdges.size()) + 1;
+  std::printf(
+      "\n| Marschner–Lobb, N, normals | ripple frequency / Nyquist < 0.7 | 0.7–0.85 | 0.85–1 | > 1 (aliased) "
+      "| all "
+      "|\n|---|---|---|---|---|---|\n");
+  auto field = cip::makeAnalyticField("marschner-lobb");
+  const double iso = field->defaultIsovalue();
+  for (int n : quick ? std::vector<int>{16} : std::vector<int>{32, 64}) {
+    const cip::DenseGrid grid = cip::sampleField(*field, n, "marschner-lobb");
+    // Mean angle per bin (and the bin's share of the samples) between each sample's normal and the true one.
+    auto row = [&](const std::string& label, const std::vector<cip::SurfaceSample>& samples, bool shares) {
+      std::array<double, kBins> sum{};
+      std::array<std::size_t, kBins> count{};
+      double total = 0;
+      std::size_t all = 0;
+      for (const auto& s : samples) {
+        const cip::Vec3 p = cip::projectToSurface(*field, iso, s.world);
+        const cip::Vec3 g = field->gradient(p);  // unoriented, as measureFidelity
+        const double c = g.norm() > 0 ? std::abs(g.normalized().dot(s.normal)) : 1.0;
+        const double angle = std::acos(std::min(1.0, c)) * 57.29577951308232;
+        const double ratio =
+            fM * kPi / 2 * std::abs(std::sin(kPi * std::hypot(p.x(), p.y()) / 2)) / (n / 4.0);
+        const auto bin =
+            static_cast<std::size_t>(std::upper_bound(kEdges.begin(), kEdges.end(), ratio) - kEdges.begin());
+        sum[bin] += angle;
+        ++count[bin];
+        total += angle;
+        ++all;
+      }
+      std::printf("| %s |", label.c_str());
+      for (std::size_t b = 0; b < kBins; ++b) {
+        std::printf(" %.2f", count[b] ? sum[b] / static_cast<double>(count[b]) : 0.0);
+        if (shares)
+          std::printf(" (%.0f %%)", 100.0 * static_cast<double>(count[b]) / static_cast<double>(all));
+        std::printf(" |");
+      }
+      std::printf(" %.2f |\n", all ? total / static_cast<double>(all) : 0.0);
+    };
+    for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
+      cip::BuildOptions o;
+      o.isovalue = iso;
+      o.normals = mode;
+      o.exactField = field.get();
+      o.threads = 1;
+      cip::BuildOptions paper = o;
+      paper.method = cip::PatchMethod::Paper;
+      const cip::Model mcModel = cip::buildModel(grid, paper);
+      const cip::TriangleMesh mesh = cip::marchingCubes(mcModel);
+      const std::string prefix = std::to_string(n) + ", " + cip::toString(mode) + ": ";
+      const bool sampled = mode == cip::NormalMode::Gradient;
+      row(prefix + "MC facet", cip::sampleMeshSurface(mesh, mcModel, 4, false), sampled);
+      if (sampled) {
+        row(prefix + "MC vertex", cip::sampleMeshSurface(mesh, mcModel, 4, true), false);
+        for (cip::Reconstruction kind : {cip::Reconstruction::Monotone, cip::Reconstruction::Central8}) {
+          o.reconstruction = kind;
+          row(prefix + "fitted, " + cip::toString(kind), cip::samplePatchSurface(cip::buildModel(grid, o), 4),
+              false);
+        }
+      } else {
+        row(prefix + "fitted", cip::samplePatchSurface(cip::buildModel(grid, o), 4), false);
+      }
+      std::fflush(stdout);
+    }
+  }
+}
+
 }  // namespace
 
 void methodTables(const std::string& sharedData, bool quick) {
   analyticTable(quick);
   realTable(sharedData, quick);
   reconstructionTable(sharedData, quick);
+  aliasingTable(quick);
 }
 
 }  // namespace cipbench
