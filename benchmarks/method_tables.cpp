@@ -242,9 +242,8 @@ void reconstructionTable(const std::string& shared, bool quick) {
 /// Nyquist limit). Each sample is binned by that ratio at its projection onto the true surface; above 1 the
 /// samples alias there, and no reconstruction of them knows the normal.
 void aliasingTable(bool quick) {
-  constexpr double kPi = 3.14159265358979323846, fM = 6;  // the field's ripple frequency (analytic_field.cpp)
   constexpr std::array<double, 3> kEdges{0.7, 0.85, 1.0};
-  constexpr int kBins = static_cast<int>(kEdges.size()) + 1;
+  constexpr std::size_t kBins = kEdges.size() + 1;
   std::printf(
       "\n| Marschner–Lobb, N, normals | ripple frequency / Nyquist < 0.7 | 0.7–0.85 | 0.85–1 | > 1 (aliased) "
       "| all "
@@ -253,34 +252,29 @@ void aliasingTable(bool quick) {
   const double iso = field->defaultIsovalue();
   for (int n : quick ? std::vector<int>{16} : std::vector<int>{32, 64}) {
     const cip::DenseGrid grid = cip::sampleField(*field, n, "marschner-lobb");
-    // Mean angle per bin (and the bin's share of the samples) between each sample's normal and the true one.
+    const double spacing = grid.geometry.spacing.x(), nyquist = 1 / (2 * spacing);
+    // The mean normal error per bin of the ripple's frequency at the sample (and the bin's share of the
+    // samples), as measureFidelity measures it.
     auto row = [&](const std::string& label, const std::vector<cip::SurfaceSample>& samples, bool shares) {
-      std::array<double, kBins> sum{};
-      std::array<std::size_t, kBins> count{};
-      double total = 0;
-      std::size_t all = 0;
+      std::array<std::vector<cip::SurfaceSample>, kBins> bins;
       for (const auto& s : samples) {
-        const cip::Vec3 p = cip::projectToSurface(*field, iso, s.world);
-        const cip::Vec3 g = field->gradient(p);  // unoriented, as measureFidelity
-        const double c = g.norm() > 0 ? std::abs(g.normalized().dot(s.normal)) : 1.0;
-        const double angle = std::acos(std::min(1.0, c)) * 57.29577951308232;
-        const double ratio =
-            fM * kPi / 2 * std::abs(std::sin(kPi * std::hypot(p.x(), p.y()) / 2)) / (n / 4.0);
-        const auto bin =
-            static_cast<std::size_t>(std::upper_bound(kEdges.begin(), kEdges.end(), ratio) - kEdges.begin());
-        sum[bin] += angle;
-        ++count[bin];
-        total += angle;
-        ++all;
+        const double ratio = cip::marschnerLobbRippleFrequency(s.world) / nyquist;
+        bins[static_cast<std::size_t>(std::upper_bound(kEdges.begin(), kEdges.end(), ratio) - kEdges.begin())]
+            .push_back(s);
       }
+      auto meanNormalError = [&](const std::vector<cip::SurfaceSample>& part) {
+        return part.empty() ? 0.0
+                            : cip::measureFidelity(part, *field, iso, spacing, false).normalDegrees.mean;
+      };
       std::printf("| %s |", label.c_str());
-      for (std::size_t b = 0; b < kBins; ++b) {
-        std::printf(" %.2f", count[b] ? sum[b] / static_cast<double>(count[b]) : 0.0);
+      for (const auto& bin : bins) {
+        std::printf(" %.2f", meanNormalError(bin));
         if (shares)
-          std::printf(" (%.0f %%)", 100.0 * static_cast<double>(count[b]) / static_cast<double>(all));
+          std::printf(" (%.0f %%)",
+                      100.0 * static_cast<double>(bin.size()) / static_cast<double>(samples.size()));
         std::printf(" |");
       }
-      std::printf(" %.2f |\n", all ? total / static_cast<double>(all) : 0.0);
+      std::printf(" %.2f |\n", meanNormalError(samples));
     };
     for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
       cip::BuildOptions o;

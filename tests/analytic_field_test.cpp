@@ -62,3 +62,20 @@ TEST(AnalyticField, LatticeValuesEqualPointValues) {
     }
   }
 }
+
+TEST(AnalyticField, MarschnerLobbRippleFrequencyCountsTheRipples) {
+  // The ripple's phase f_M cos(pi r / 2) runs from 6 cycles on the z-axis to 0 at r = 1: the frequency
+  // integrated along any radius over [0, 1] is 6 cycles, whatever the height and direction.
+  for (const Vec3& direction : {Vec3(1, 0, 0), Vec3(0.6, -0.8, 0)})
+    for (double z : {-0.5, 0.3}) {
+      constexpr int kSteps = 2000;
+      double cycles = 0;
+      for (int i = 0; i < kSteps; ++i) {
+        const double r = (i + 0.5) / kSteps;
+        cycles += marschnerLobbRippleFrequency(r * direction + Vec3(0, 0, z)) / kSteps;
+      }
+      EXPECT_NEAR(cycles, 6.0, 1e-6) << "z " << z;
+    }
+  EXPECT_EQ(marschnerLobbRippleFrequency(Vec3(0, 0, 0.4)), 0.0);
+  EXPECT_NEAR(marschnerLobbRippleFrequency(Vec3(0, -1, 0)), 6 * 3.14159265358979323846 / 2, 1e-12);
+}

@@ -164,6 +164,11 @@ std::unique_ptr<AnalyticField> makeAnalyticField(const std::string& name) {
   return nullptr;
 }
 
+double marschnerLobbRippleFrequency(const Vec3& p) {
+  // The ripple is cos(2 pi u) with u = f_M cos(pi r / 2) cycles; its frequency is |du/dr|.
+  return MarschnerLobb::fM * kPi / 2 * std::abs(std::sin(kPi * planeLength(p.x(), p.y()) / 2));
+}
+
 DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description) {
   if (resolution < 1 || resolution > 4096)
     throw Error("resolution must be between 1 and 4096 cells per axis");

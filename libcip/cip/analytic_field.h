@@ -30,6 +30,10 @@ class AnalyticField : public ScalarField {
 std::vector<std::string> analyticFieldNames();
 /// Returns the named field, or nullptr if the name is unknown.
 std::unique_ptr<AnalyticField> makeAnalyticField(const std::string& name);
+/// The local frequency of the Marschner-Lobb field's radial ripple at world point p (cycles per world unit,
+/// across the ripple): f_M pi/2 |sin(pi r/2)| with r the distance from the z-axis. A grid of spacing h
+/// carries it only below its Nyquist limit 1 / (2 h).
+double marschnerLobbRippleFrequency(const Vec3& p);
 /// Samples a field at (N+1)^3 points over [-1,1]^3; throws cip::Error for N < 1 or absurd sizes.
 DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description);
 

@@ -15,6 +15,25 @@ namespace {
 
 constexpr double kRadToDeg = 57.29577951308232;
 
+/// Newton steps along the gradient from p (world) towards the surface truth = iso, where truth - iso = v.
+/// After each step, stop(p, v) with the new point and value may end the walk (the result is then true); it
+/// also ends after maxSteps, where the gradient vanishes or when a step is below 1e-13 (result false). p is
+/// left at the last point.
+template <class Stop>
+bool newtonSteps(const ScalarField& truth, double iso, Vec3& p, double v, int maxSteps, Stop&& stop) {
+  for (int it = 0; it < maxSteps; ++it) {
+    const Vec3 g = truth.gradient(p);
+    const double g2 = g.squaredNorm();
+    if (!(g2 > 0)) return false;
+    const Vec3 step = v / g2 * g;
+    p -= step;
+    v = truth.value(p) - iso;
+    if (stop(p, v)) return true;
+    if (!(step.norm() >= 1e-13)) return false;
+  }
+  return false;
+}
+
 /// Whether the true surface passes within `radius` (world) of w, where truth - iso = fw != 0. Newton steps
 /// from w prove it when one lands within the radius on the surface (then it is a surface point) or on the
 /// other sign (the segment from w to it lies in the ball and crosses the surface). They may take many steps:
@@ -23,20 +42,12 @@ constexpr double kRadToDeg = 57.29577951308232;
 /// points 1/8 of the radius apart is searched for the other sign. (Newton alone can land on a farther part of
 /// the surface than the nearest one, and then overstates the distance.)
 bool surfaceWithin(const ScalarField& truth, double iso, const Vec3& w, double fw, double radius) {
-  constexpr int kNewtonSteps = 100;
   const double tolerance = 1e-9 * std::max(1.0, std::abs(fw));
   Vec3 p = w;
-  double v = fw;
-  for (int it = 0; it < kNewtonSteps; ++it) {
-    const Vec3 g = truth.gradient(p);
-    const double g2 = g.squaredNorm();
-    if (!(g2 > 0)) break;
-    const Vec3 step = v / g2 * g;
-    p -= step;
-    v = truth.value(p) - iso;
-    if ((p - w).norm() <= radius && ((v > 0) != (fw > 0) || std::abs(v) <= tolerance)) return true;
-    if (!(step.norm() >= 1e-13)) break;
-  }
+  const bool reached = newtonSteps(truth, iso, p, fw, 100, [&](const Vec3& q, double v) {
+    return (q - w).norm() <= radius && ((v > 0) != (fw > 0) || std::abs(v) <= tolerance);
+  });
+  if (reached) return true;
   constexpr int k = 8;
   const double step = radius / k;
   for (int a = -k; a <= k; ++a)
@@ -74,15 +85,7 @@ std::vector<SurfaceSample> collect(std::size_t cells, PerCell&& perCell) {
 }  // namespace
 
 Vec3 projectToSurface(const ScalarField& f, double iso, Vec3 p) {
-  for (int it = 0; it < 30; ++it) {
-    double v = f.value(p) - iso;
-    Vec3 g = f.gradient(p);
-    double g2 = g.squaredNorm();
-    if (!(g2 > 0)) break;
-    Vec3 step = v / g2 * g;
-    p -= step;
-    if (step.norm() < 1e-13) break;
-  }
+  newtonSteps(f, iso, p, f.value(p) - iso, 30, [](const Vec3&, double) { return false; });
   return p;
 }
 
