@@ -11,6 +11,10 @@
 #include <optional>
 #include <vector>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "cip/cube_topology.h"
 #include "cip/error.h"
 #include "cip/patch_coefficients.h"
@@ -90,6 +94,20 @@ struct WorldLattice {
             ref.geometry->origin[axis] + ref.geometry->spacing[axis] * (ref.origin[axis] + Axis::coord(i));
   }
 };
+
+/// Bit i set where values[i] > 0 (false for NaN), for the `count` <= 64 values: the sign changes of a lattice
+/// are found from these bits without a branch per pair. Two values per comparison with SSE2.
+std::uint64_t positiveBits(const double* values, int count) {
+  std::uint64_t bits = 0;
+  int i = 0;
+#if defined(__SSE2__)
+  const __m128d zero = _mm_setzero_pd();
+  for (; i + 2 <= count; i += 2)
+    bits |= static_cast<std::uint64_t>(_mm_movemask_pd(_mm_cmpgt_pd(_mm_loadu_pd(values + i), zero))) << i;
+#endif
+  for (; i < count; ++i) bits |= std::uint64_t{values[i] > 0} << i;
+  return bits;
+}
 
 /// An analytic reference minus the isovalue at the tensor lattice given per axis by `coordinate` (world).
 void analyticLattice(const CellReference& ref, const double* const coordinate[3],
@@ -571,23 +589,14 @@ template <class Axis, int n = Axis::n>
 CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face,
                                               std::array<double, n * n>& cornerPart,
                                               std::array<double, n * n>& sideBasis) {
-  // The squared perpendicular plane of canonical edge j at lattice coordinate i, and per edge set the
-  // products of those of its u-dependent and its v-dependent edges.
+  // The product of the squared perpendicular planes of a set of crossed edges: those of edges 0, 1 (v, 1 - v)
+  // depend on v, those of edges 2, 3 (u, 1 - u) on u, so it is su[a] sv[b] with the squares of
+  // LatticeSquares for the patterns (edges >> 2) & 3 along u and edges & 3 along v.
   const LatticeSquares<Axis> table =
       LatticeSquares<Axis>::get();  // a local copy: the outputs cannot alias it
   const auto& t = table.t;
-  const double* const square[4] = {table.sq[1], table.sq[2], table.sq[1], table.sq[2]};  // t^2, (1 - t)^2
-  auto products = [&](unsigned edges, double* u, double* v) {
-    for (int i = 0; i < n; ++i) {
-      double pu = 1, pv = 1;
-      for (int j = 0; j < 4; ++j)
-        if ((edges >> j) & 1) (j < 2 ? pv : pu) *= square[j][i];
-      u[i] = pu;
-      v[i] = pv;
-    }
-  };
-  double u[n], v[n];
-  products(face.crossed, u, v);
+  const double* u = table.sq[(face.crossed >> 2) & 3];
+  const double* v = table.sq[face.crossed & 3];
   for (int b = 0; b < n; ++b)
     for (int a = 0; a < n; ++a) {
       sideBasis[static_cast<std::size_t>(a + n * b)] = u[a] * v[b];
@@ -595,7 +604,9 @@ CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face,
     }
   for (int k = 0; k < 4; ++k) {
     if (!((face.crossed >> k) & 1)) continue;
-    products(face.crossed & ~(1u << k), u, v);
+    const unsigned others = face.crossed & ~(1u << k);
+    u = table.sq[(others >> 2) & 3];
+    v = table.sq[others & 3];
     const Vec2 normal = face.weight[k] * face.normal[k];
     const double nu = normal.x(), nv = normal.y(), offset = -normal.dot(face.point[k]);
     for (int b = 0; b < n; ++b) {
@@ -645,8 +656,8 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   // Sign changes between lattice neighbours as bits (most pairs have none: no branch per pair), visited in
   // lattice order.
   static_assert(n * n <= 64, "face lattice signs in one word");
-  std::uint64_t signs = 0, lastColumn = 0;
-  for (int k = 0; k < n * n; ++k) signs |= std::uint64_t{r[static_cast<std::size_t>(k)] > 0} << k;
+  const std::uint64_t signs = positiveBits(r.data(), n * n);
+  std::uint64_t lastColumn = 0;
   for (int b = 0; b < n; ++b) lastColumn |= std::uint64_t{1} << (n - 1 + n * b);
   const std::uint64_t alongU = (signs ^ (signs >> 1)) & ~lastColumn & ((std::uint64_t{1} << (n * n)) - 1);
   const std::uint64_t alongV = (signs ^ (signs >> n)) & ((std::uint64_t{1} << (n * (n - 1))) - 1);
@@ -742,12 +753,17 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   // interpolation of the reference), where the patch is evaluated exactly.
   double num = 0, den = 0;
   int fitCount = 0;
+  // Sign changes along the lines as bits (few lines cross the surface: no branch per pair); line (p, q) is
+  // the n bits from lines.index(0, p, q) on.
+  std::array<std::uint64_t, (kLattice + 63) / 64> positive;
+  for (int w = 0; w < (kLattice + 63) / 64; ++w)
+    positive[static_cast<std::size_t>(w)] = positiveBits(r.data() + 64 * w, std::min(64, kLattice - 64 * w));
   for (int q = 0; q < n; ++q)
     for (int p = 0; p < n; ++p) {
-      // Sign changes along the line as bits (few lines cross the surface: no branch per pair).
-      unsigned signs = 0;
-      for (int i = 0; i < n; ++i)
-        signs |= unsigned{r[static_cast<std::size_t>(lines.index(i, p, q))] > 0} << i;
+      const int start = lines.index(0, p, q), word = start / 64, shift = start % 64;
+      std::uint64_t line = positive[static_cast<std::size_t>(word)] >> shift;
+      if (shift + n > 64) line |= positive[static_cast<std::size_t>(word + 1)] << (64 - shift);
+      const auto signs = static_cast<unsigned>(line & ((1u << n) - 1));
       for (unsigned changes = (signs ^ (signs >> 1)) & ((1u << (n - 1)) - 1); changes;
            changes &= changes - 1) {
         const int i = __builtin_ctz(changes);
