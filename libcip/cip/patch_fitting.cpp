@@ -8,11 +8,10 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
-#include <optional>
 #include <vector>
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
+#if defined(__x86_64__)
+#include <immintrin.h>
 #endif
 
 #include "cip/cube_topology.h"
@@ -97,9 +96,31 @@ struct WorldLattice {
 
 /// Bit i set where values[i] > 0 (false for NaN), for the `count` <= 64 values: the sign changes of a lattice
 /// are found from these bits without a branch per pair. Two values per comparison with SSE2.
+#if defined(__x86_64__) && defined(__has_attribute)
+#if __has_attribute(target)
+#define CIP_POSITIVE_BITS_AVX2 1
+/// positiveBits four values per comparison, for the values up to a multiple of four.
+__attribute__((target("avx2"))) std::uint64_t positiveBitsAvx2(const double* values, int count, int& done) {
+  std::uint64_t bits = 0;
+  const __m256d zero = _mm256_setzero_pd();
+  int i = 0;
+  for (; i + 4 <= count; i += 4)
+    bits |= static_cast<std::uint64_t>(
+                _mm256_movemask_pd(_mm256_cmp_pd(_mm256_loadu_pd(values + i), zero, _CMP_GT_OQ)))
+            << i;
+  done = i;
+  return bits;
+}
+#endif
+#endif
+
 std::uint64_t positiveBits(const double* values, int count) {
   std::uint64_t bits = 0;
   int i = 0;
+#if defined(CIP_POSITIVE_BITS_AVX2)
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  if (avx2) bits = positiveBitsAvx2(values, count, i);
+#endif
 #if defined(__SSE2__)
   const __m128d zero = _mm_setzero_pd();
   for (; i + 2 <= count; i += 2)
@@ -124,9 +145,9 @@ void analyticLattice(const CellReference& ref, const double* const coordinate[3]
 /// vectorises (the weights are the same on every axis).
 template <class Axis, int n = Axis::n>
 CIP_VECTOR_CLONES void tricubicLatticeInLineOrder(const double* hermite, double isovalue, int L, int P, int Q,
-                                                  double* out) {
-  // A local copy: `out` cannot alias it, so the passes stay vectorised.
-  const LatticeWeights<Axis> weights = LatticeWeights<Axis>::get();
+                                                  double* __restrict out) {
+  // `out` aliases neither the weights nor the local arrays (restrict), so the passes stay vectorised.
+  const LatticeWeights<Axis>& weights = LatticeWeights<Axis>::get();
   const auto& w = weights.w;
   constexpr int stride[3] = {1, 4, 16};
   double h[4][16];  // [Q index][L index + 4 P index]
@@ -190,8 +211,8 @@ Vec3 faceLatticePoint(int f, int a, int b) {
 /// CellReference) minus `isovalue` on the n x n lattice of the lattice points (index a + n b): contracted
 /// along u, then v, each pass over contiguous arrays so that it vectorises.
 template <class Axis, int n = Axis::n>
-CIP_VECTOR_CLONES void bicubicLattice(const double (&face)[4][4], double isovalue, double* value) {
-  const LatticeWeights<Axis> weights = LatticeWeights<Axis>::get();  // a local copy, as above
+CIP_VECTOR_CLONES void bicubicLattice(const double (&face)[4][4], double isovalue, double* __restrict value) {
+  const LatticeWeights<Axis>& weights = LatticeWeights<Axis>::get();  // `value` aliases nothing, as above
   const auto& w = weights.w;
   const auto& wt = weights.byIndex;
   double along[4][n];  // contracted along u, per v-Hermite index
@@ -473,17 +494,17 @@ class PatchLines {
   unsigned used_ = 0;
   double t_[n], s_[4][n];
   std::array<std::array<double, n * n>, 4> a_, b_;  ///< valid for the patterns in used_
-  std::array<double, n * n> c_{};
+  std::array<double, n * n> c_;  ///< every entry set by the constructor
 };
 
 /// valueWithoutCentral and centralBasis of a patch on face f's lattice (face frame, index a + n b), by
 /// separable products as in PatchLines.
 template <class Axis, int n = Axis::n>
-void patchFaceLattice(const LinearTerms& terms, int f, double* value, double* basis) {
+void patchFaceLattice(const LinearTerms& terms, int f, double* __restrict value, double* __restrict basis) {
   const int axis = cube::faceAxis(f);
   const double side = cube::faceSide(f);
   const auto uv = cube::otherAxes(axis);
-  const LatticeSquares<Axis> table = LatticeSquares<Axis>::get();  // a local copy: `value` cannot alias it
+  const LatticeSquares<Axis>& table = LatticeSquares<Axis>::get();  // the outputs alias nothing (restrict)
   const auto& t = table.t;
   const auto& sq = table.sq;
   // A term adds su[a] (t[a] X[b] + Y[b]) with X = across sv n_u and Y = across sv (constant + n_v t): the
@@ -587,13 +608,12 @@ bool neighbourCrosses(const double* r, int index, const LatticeLayout& lattice, 
 /// canonical edges 0, 1 depend on v only (v, 1 - v), those of edges 2, 3 on u only (u, 1 - u).
 template <class Axis, int n = Axis::n>
 CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face,
-                                              std::array<double, n * n>& cornerPart,
-                                              std::array<double, n * n>& sideBasis) {
+                                              std::array<double, n * n>& __restrict cornerPart,
+                                              std::array<double, n * n>& __restrict sideBasis) {
   // The product of the squared perpendicular planes of a set of crossed edges: those of edges 0, 1 (v, 1 - v)
   // depend on v, those of edges 2, 3 (u, 1 - u) on u, so it is su[a] sv[b] with the squares of
   // LatticeSquares for the patterns (edges >> 2) & 3 along u and edges & 3 along v.
-  const LatticeSquares<Axis> table =
-      LatticeSquares<Axis>::get();  // a local copy: the outputs cannot alias it
+  const LatticeSquares<Axis>& table = LatticeSquares<Axis>::get();  // the outputs alias nothing (restrict)
   const auto& t = table.t;
   const double* u = table.sq[(face.crossed >> 2) & 3];
   const double* v = table.sq[face.crossed & 3];
@@ -742,7 +762,9 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
     return std::array<int, 2>{(i - kLattice) / (nf * nf), (i - kLattice) % (nf * nf)};
   };
   const int staggeredBegin = kLattice + nf * nf * numOpen;
-  std::optional<PatchLines<Staggered>> staggeredLines;
+  // The staggered lattice's patch lines, while the second look below has them (a pointer rather than an
+  // optional: the optional's storage, 2 KB, was zero-filled in every cell).
+  const PatchLines<Staggered>* staggeredLines = nullptr;
   auto position = [&](int i) {
     if (i < kLattice) return lines.point(i);
     if (i >= staggeredBegin) return staggeredLines->point(i - staggeredBegin);
@@ -824,11 +846,13 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   // so that the fallback rounds blend its normals; it keeps the coefficient of its own lattice meanwhile, and
   // at the end if it stays unresolved.
   if (sc.feasible && solver.confirmedNear() >= kStaggeredTrigger) {
-    staggeredLines.emplace(terms, fitAxis);
+    const PatchLines<Staggered> staggered(terms, fitAxis);
+    staggeredLines = &staggered;
     referenceCellLattice<Staggered>(ref, fitAxis, r.data() + staggeredBegin);
     staggeredLines->lattice(value.data() + staggeredBegin, basis.data() + staggeredBegin);
     const SignSamples all{r.data(), value.data(), basis.data(), staggeredBegin + kStaggered};
     const SignedCoefficient both = solver.solve(fitted, all, far, confirmFar);
+    staggeredLines = nullptr;  // `staggered` ends here; the samples below are the cell's own lattice's
     if (!both.feasible) return CellResult{sc.value, false};
     sc = both;
   }
