@@ -454,7 +454,7 @@ class PatchLines {
   }
 
   /// valueWithoutCentral and centralBasis at every lattice point.
-  void lattice(double* value, double* basis) const {
+  void lattice(double* __restrict value, double* __restrict basis) const {
     int patterns[4], numPatterns = 0;
     for (int m = 0; m < 4; ++m)
       if ((used_ >> m) & 1) patterns[numPatterns++] = m;
