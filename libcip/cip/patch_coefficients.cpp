@@ -17,20 +17,6 @@ Vec2 edgeDir(int k) {
   return k < 2 ? Vec2(1, 0) : Vec2(0, 1);
 }
 
-// Perpendicular bounding plane through canonical edge k, restricted to the face: v, 1-v, u, 1-u.
-double perpendicularPlane(int k, const Vec2& q) {
-  switch (k) {
-    case 0:
-      return q.y();
-    case 1:
-      return 1.0 - q.y();
-    case 2:
-      return q.x();
-    default:
-      return 1.0 - q.x();
-  }
-}
-
 // Intersection of corner line k (n . (x - p) = 0) with the line of canonical edge `other`, clamped to the
 // edge.
 Vec2 lineOnEdge(const FaceCrossings& face, int k, int other) {
@@ -74,27 +60,6 @@ Vec2 sidePoint(const FaceCrossings& face, int k1, int k2, SideRule* rule) {
   }
   if (rule) *rule = SideRule::Tetragon;
   return (p1 + lineOnEdge(face, k1, k2) + p2 + lineOnEdge(face, k2, k1)) / 4.0;
-}
-
-FaceRestriction faceRestriction(const FaceCrossings& face, const Vec2& q) {
-  FaceRestriction r;
-  double perp2[4];
-  for (int k = 0; k < 4; ++k) {
-    double b = perpendicularPlane(k, q);
-    perp2[k] = b * b;
-  }
-  r.sideBasis = 1;
-  for (int k = 0; k < 4; ++k)
-    if ((face.crossed >> k) & 1) r.sideBasis *= perp2[k];
-  for (int k = 0; k < 4; ++k) {
-    if (!((face.crossed >> k) & 1)) continue;
-    double term = face.weight[k] * face.normal[k].dot(q - face.point[k]);
-    for (int j = 0; j < 4; ++j)
-      if (j != k && ((face.crossed >> j) & 1)) term *= perp2[j];
-    r.cornerPart += term;
-    r.cornerMagnitude += std::abs(term);
-  }
-  return r;
 }
 
 // Eq. 5 divides by D = prod P_j^2 at the side point; below this (e.g. a side point within ~1e-5 of two face

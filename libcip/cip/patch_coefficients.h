@@ -7,6 +7,7 @@
 #pragma once
 #include <Eigen/Core>
 #include <array>
+#include <cmath>
 #include <cstdint>
 
 #include "cip/corner_patch.h"
@@ -44,7 +45,27 @@ struct FaceRestriction {
       0;  ///< D(q) = prod_{j crossed} P_j(q)^2 (P_j: the plane perpendicular to edge j's face side)
   double cornerMagnitude = 0;  ///< sum of |terms| of R(q): the scale against which R(q) is rounding noise
 };
-FaceRestriction faceRestriction(const FaceCrossings& face, const Vec2& q);
+/// Defined here, inline: the fitted construction evaluates it at every fit point of every face.
+inline FaceRestriction faceRestriction(const FaceCrossings& face, const Vec2& q) {
+  // Squares of the planes perpendicular to canonical edges 0..3 (through them, restricted to the face): v,
+  // 1 - v, u, 1 - u.
+  const double perp[4] = {q.y(), 1.0 - q.y(), q.x(), 1.0 - q.x()};
+  double perp2[4];
+  for (int k = 0; k < 4; ++k) perp2[k] = perp[k] * perp[k];
+  FaceRestriction r;
+  r.sideBasis = 1;
+  for (int k = 0; k < 4; ++k)
+    if ((face.crossed >> k) & 1) r.sideBasis *= perp2[k];
+  for (int k = 0; k < 4; ++k) {
+    if (!((face.crossed >> k) & 1)) continue;
+    double term = face.weight[k] * face.normal[k].dot(q - face.point[k]);
+    for (int j = 0; j < 4; ++j)
+      if (j != k && ((face.crossed >> j) & 1)) term *= perp2[j];
+    r.cornerPart += term;
+    r.cornerMagnitude += std::abs(term);
+  }
+  return r;
+}
 
 /// Side coefficient of the face: eq. 5 at its side point; an ambiguous face (two segments) fits both side
 /// points in the least-squares sense. Side points on (or within rounding of) the face border are left out
