@@ -94,12 +94,10 @@ struct WorldLattice {
   }
 };
 
-/// Bit i set where values[i] > 0 (false for NaN), for the `count` <= 64 values: the sign changes of a lattice
-/// are found from these bits without a branch per pair. Two values per comparison with SSE2.
 #if defined(__x86_64__) && defined(__has_attribute)
 #if __has_attribute(target)
 #define CIP_POSITIVE_BITS_AVX2 1
-/// positiveBits four values per comparison, for the values up to a multiple of four.
+/// positiveBits (below) for the values up to a multiple of four, four per comparison; `done` is that count.
 __attribute__((target("avx2"))) std::uint64_t positiveBitsAvx2(const double* values, int count, int& done) {
   std::uint64_t bits = 0;
   const __m256d zero = _mm256_setzero_pd();
@@ -114,6 +112,8 @@ __attribute__((target("avx2"))) std::uint64_t positiveBitsAvx2(const double* val
 #endif
 #endif
 
+/// Bit i set where values[i] > 0 (false for NaN), for the `count` <= 64 values: the sign changes of a lattice
+/// are found from these bits without a branch per pair. Four values per comparison with AVX2, two with SSE2.
 std::uint64_t positiveBits(const double* values, int count) {
   std::uint64_t bits = 0;
   int i = 0;
@@ -494,7 +494,7 @@ class PatchLines {
   unsigned used_ = 0;
   double t_[n], s_[4][n];
   std::array<std::array<double, n * n>, 4> a_, b_;  ///< valid for the patterns in used_
-  std::array<double, n * n> c_;  ///< every entry set by the constructor
+  std::array<double, n * n> c_;                     ///< every entry set by the constructor
 };
 
 /// valueWithoutCentral and centralBasis of a patch on face f's lattice (face frame, index a + n b), by
