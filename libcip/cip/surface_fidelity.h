@@ -71,6 +71,14 @@ std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth,
                                  const std::vector<double>& coordinates, double marginVoxels = 0.5,
                                  const std::vector<std::uint32_t>& skipCells = {});
 
+/// Number of cells whose patch takes, somewhere on a face that is not one of its bounding planes (an "open"
+/// face: no crossing on its edges, so its four corners share one sign), the other sign than those corners, at
+/// a point of a lattice x lattice grid on the face that includes its border. No neighbouring patch continues
+/// the surface across such a face (the cell across has no crossing there, or none joined to this one), so
+/// the patch's zero set ends on it: a hole that rays pass through. Needs no reference: marching cubes'
+/// surface never meets an open face.
+std::int64_t countOpenFaceLeaks(const Model& model, int lattice = 33);
+
 /// Newton steps along the gradient from p (world) onto the surface truth = iso (at most 30; stops when a step
 /// is below 1e-13 or the gradient vanishes). The result is a surface point when it converges, not always the
 /// nearest one.
