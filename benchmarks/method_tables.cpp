@@ -74,13 +74,10 @@ double percent(std::int64_t count, std::size_t cells) {
   return cells ? 100.0 * static_cast<double>(count) / static_cast<double>(cells) : 0.0;
 }
 
-void analyticTable(bool quick) {
-  std::printf(
-      "| field, N, mode | MC dist | MC facet normal | MC vertex normal "
-      "| paper spurious | paper dist | paper normal "
-      "| **fitted spurious** (8³/16³) | **fitted dist** | **fitted normal** (p99) "
-      "| reference (auto: effective wavelength) | reference normal | time paper → fitted |\n"
-      "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+/// Every case of the analytic table: the analytic fields but the plane at N = 32 and 64 (16 with `quick`), in
+/// gradient and exact mode; fn(name, n, mode, field, grid, options) with the options of such a build.
+template <class Fn>
+void forEachAnalyticCase(bool quick, Fn&& fn) {
   std::vector<std::string> names = cip::analyticFieldNames();
   names.erase(std::remove(names.begin(), names.end(), "plane"), names.end());
   for (const std::string& name : names)
@@ -92,51 +89,16 @@ void analyticTable(bool quick) {
         o.isovalue = field->defaultIsovalue();
         o.normals = mode;
         o.exactField = field.get();
-        cip::FittingStats stats;
-        o.fittingStats = &stats;
-        const auto [paper, fitted, tPaper, tFitted] = buildBoth(grid, o);
-        const double voxel = grid.geometry.spacing.minCoeff(), iso = o.isovalue;
-        const cip::TriangleMesh mesh = cip::marchingCubes(paper);
-        auto mcFacet =
-            cip::measureFidelity(cip::sampleMeshSurface(mesh, paper, 4, false), *field, iso, voxel, false);
-        auto mcVertex =
-            cip::measureFidelity(cip::sampleMeshSurface(mesh, paper, 4, true), *field, iso, voxel, false);
-        auto paperF = cip::measureFidelity(cip::samplePatchSurface(paper, 4), *field, iso, voxel, false);
-        const auto fittedSamples = cip::samplePatchSurface(fitted, 4);
-        auto fittedF = cip::measureFidelity(fittedSamples, *field, iso, voxel, false);
-        const bool sampled = mode == cip::NormalMode::Gradient;
-        const cip::TricubicInterpolant interpolant(grid, stats.reconstruction);
-        const std::string reference =
-            sampled
-                ? std::to_string(referenceNormalError(fittedSamples, *field, interpolant, iso)).substr(0, 5)
-                : "0 (exact)";
-        char kind[64] = "exact";
-        if (sampled)
-          std::snprintf(kind, sizeof kind, "%s (%.2f)", cip::toString(stats.reconstruction),
-                        stats.sampling.wavelength);
-        std::printf(
-            "| %s %d %s | %.4f | %.2f | %.2f "
-            "| %.1f %% | %.4f | %.2f "
-            "| **%.2f / %.2f %%** | **%.4f** | **%.2f** (%.1f) "
-            "| %s | %s | %.1f → %.1f ms (%.1f×) |\n",
-            name.c_str(), n, cip::toString(mode), mcFacet.distanceVoxels.mean, mcFacet.normalDegrees.mean,
-            mcVertex.normalDegrees.mean,
-            percent(cip::countSpuriousCells(paper, *field, 8, 0.5), paper.cells.size()),
-            paperF.distanceVoxels.mean, paperF.normalDegrees.mean,
-            percent(cip::countSpuriousCells(fitted, *field, 8, 0.5), fitted.cells.size()),
-            percent(cip::countSpuriousCells(fitted, *field, 16, 0.5), fitted.cells.size()),
-            fittedF.distanceVoxels.mean, fittedF.normalDegrees.mean, fittedF.normalDegrees.p99, kind,
-            reference.c_str(), tPaper, tFitted, tFitted / tPaper);
-        std::fflush(stdout);
+        fn(name, n, mode, *field, grid, o);
       }
 }
 
-void realTable(const std::string& shared, bool quick) {
-  std::printf(
-      "\n| volume, isovalue | cells | paper wrong-sign cells | **fitted wrong-sign cells** (8³ / 16³) "
-      "| fitted dist / normal vs the interpolant | blended isovertices, unresolved cells "
-      "| reference (auto: effective wavelength) | time paper → fitted |\n"
-      "|---|---|---|---|---|---|---|---|\n");
+/// Every case of the real-volume table that `shared` holds (the first only with `quick`): fn(file, iso,
+/// grid). OpenVDB volumes are read as one brick over their active box (inactive points read as the
+/// background): the model of bricks with the reference's apron is the same (VdbReader.SphereLevelSet), and
+/// the reference of the measure needs one grid.
+template <class Fn>
+void forEachRealCase(const std::string& shared, bool quick, Fn&& fn) {
   struct Case {
     const char* file;
     double iso;
@@ -148,33 +110,89 @@ void realTable(const std::string& shared, bool quick) {
   for (const Case& c : cases) {
     const std::string path = shared + "/" + c.file;
     if (!std::filesystem::exists(path)) continue;
-    // OpenVDB volumes as one brick over their active box (inactive points read as the background): the model
-    // of bricks with the reference's apron is the same (VdbReader.SphereLevelSet), and the reference of the
-    // measure needs one grid.
     cip::VolumeReadOptions read;
     read.brickCells = 1 << 20;
     const cip::SparseVolume volume = cip::readVolume(path, read);
-    const cip::DenseGrid& grid = *volume.dense();
+    fn(c.file, c.iso, *volume.dense());
+  }
+}
+
+void analyticTable(bool quick) {
+  std::printf(
+      "| field, N, mode | MC dist | MC facet normal | MC vertex normal "
+      "| paper spurious | paper dist | paper normal "
+      "| **fitted spurious** (8³/16³) | **fitted dist** | **fitted normal** (p99) "
+      "| reference (auto: effective wavelength) | reference normal | time paper → fitted |\n"
+      "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  forEachAnalyticCase(quick, [](const std::string& name, int n, cip::NormalMode mode,
+                                const cip::AnalyticField& fieldRef, const cip::DenseGrid& grid,
+                                cip::BuildOptions o) {
+    const cip::AnalyticField* field = &fieldRef;
+    cip::FittingStats stats;
+    o.fittingStats = &stats;
+    const auto [paper, fitted, tPaper, tFitted] = buildBoth(grid, o);
+    const double voxel = grid.geometry.spacing.minCoeff(), iso = o.isovalue;
+    const cip::TriangleMesh mesh = cip::marchingCubes(paper);
+    auto mcFacet =
+        cip::measureFidelity(cip::sampleMeshSurface(mesh, paper, 4, false), *field, iso, voxel, false);
+    auto mcVertex =
+        cip::measureFidelity(cip::sampleMeshSurface(mesh, paper, 4, true), *field, iso, voxel, false);
+    auto paperF = cip::measureFidelity(cip::samplePatchSurface(paper, 4), *field, iso, voxel, false);
+    const auto fittedSamples = cip::samplePatchSurface(fitted, 4);
+    auto fittedF = cip::measureFidelity(fittedSamples, *field, iso, voxel, false);
+    const bool sampled = mode == cip::NormalMode::Gradient;
+    const cip::TricubicInterpolant interpolant(grid, stats.reconstruction);
+    const std::string reference =
+        sampled ? std::to_string(referenceNormalError(fittedSamples, *field, interpolant, iso)).substr(0, 5)
+                : "0 (exact)";
+    char kind[64] = "exact";
+    if (sampled)
+      std::snprintf(kind, sizeof kind, "%s (%.2f)", cip::toString(stats.reconstruction),
+                    stats.sampling.wavelength);
+    std::printf(
+        "| %s %d %s | %.4f | %.2f | %.2f "
+        "| %.1f %% | %.4f | %.2f "
+        "| **%.2f / %.2f %%** | **%.4f** | **%.2f** (%.1f) "
+        "| %s | %s | %.1f → %.1f ms (%.1f×) |\n",
+        name.c_str(), n, cip::toString(mode), mcFacet.distanceVoxels.mean, mcFacet.normalDegrees.mean,
+        mcVertex.normalDegrees.mean,
+        percent(cip::countSpuriousCells(paper, *field, 8, 0.5), paper.cells.size()),
+        paperF.distanceVoxels.mean, paperF.normalDegrees.mean,
+        percent(cip::countSpuriousCells(fitted, *field, 8, 0.5), fitted.cells.size()),
+        percent(cip::countSpuriousCells(fitted, *field, 16, 0.5), fitted.cells.size()),
+        fittedF.distanceVoxels.mean, fittedF.normalDegrees.mean, fittedF.normalDegrees.p99, kind,
+        reference.c_str(), tPaper, tFitted, tFitted / tPaper);
+    std::fflush(stdout);
+  });
+}
+
+void realTable(const std::string& shared, bool quick) {
+  std::printf(
+      "\n| volume, isovalue | cells | paper wrong-sign cells | **fitted wrong-sign cells** (8³ / 16³) "
+      "| fitted dist / normal vs the interpolant | blended isovertices, unresolved cells "
+      "| reference (auto: effective wavelength) | time paper → fitted |\n"
+      "|---|---|---|---|---|---|---|---|\n");
+  forEachRealCase(shared, quick, [](const char* file, double iso, const cip::DenseGrid& grid) {
     cip::BuildOptions o;
-    o.isovalue = c.iso;
+    o.isovalue = iso;
     cip::FittingStats stats;
     o.fittingStats = &stats;
     const auto [paper, fitted, tPaper, tFitted] = buildBoth(grid, o);
     const cip::TricubicInterpolant reference(grid, stats.reconstruction);  // the one the build chose
     const double voxel = grid.geometry.spacing.minCoeff();
-    auto f = cip::measureFidelity(cip::samplePatchSurface(fitted, 4), reference, c.iso, voxel, false);
+    auto f = cip::measureFidelity(cip::samplePatchSurface(fitted, 4), reference, iso, voxel, false);
     const std::int64_t paperBad = cip::countSpuriousCells(paper, reference, 8, 0.5);
     std::printf(
         "| %s %g | %zu | %lld (%.1f %%) | **%lld / %lld** | %.4f / %.2f° | %zu, %zu | %s (%.2f) "
         "| %.0f → %.0f ms (%.1f×) |\n",
-        c.file, c.iso, fitted.cells.size(), static_cast<long long>(paperBad),
+        file, iso, fitted.cells.size(), static_cast<long long>(paperBad),
         percent(paperBad, paper.cells.size()),
         static_cast<long long>(cip::countSpuriousCells(fitted, reference, 8, 0.5)),
         static_cast<long long>(cip::countSpuriousCells(fitted, reference, 16, 0.5)), f.distanceVoxels.mean,
         f.normalDegrees.mean, stats.blendedVertices, stats.unresolvedCells.size(),
         cip::toString(stats.reconstruction), stats.sampling.wavelength, tPaper, tFitted, tFitted / tPaper);
     std::fflush(stdout);
-  }
+  });
 }
 
 /// The fitted construction with the central8 reference (gradient mode) beside the monotone one:
@@ -322,35 +340,18 @@ void openFaceTable(const std::string& shared, bool quick) {
                 percent(f, fitted.cells.size()));
     std::fflush(stdout);
   };
-  std::vector<std::string> names = cip::analyticFieldNames();
-  names.erase(std::remove(names.begin(), names.end(), "plane"), names.end());
-  for (const std::string& name : names)
-    for (int n : quick ? std::vector<int>{16} : std::vector<int>{32, 64})
-      for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
-        auto field = cip::makeAnalyticField(name);
-        const cip::DenseGrid grid = cip::sampleField(*field, n, name);
-        cip::BuildOptions o;
-        o.isovalue = field->defaultIsovalue();
-        o.normals = mode;
-        o.exactField = field.get();
-        row(name + " " + std::to_string(n) + " " + cip::toString(mode), grid, o);
-      }
-  std::vector<std::pair<std::string, double>> cases = {
-      {"nucleon.nhdr", 128}, {"tooth.nhdr", 120},   {"tooth.nhdr", 200},    {"headsq.nhdr", 500},
-      {"headsq.nhdr", 1150}, {"vdb/sphere.vdb", 0}, {"vdb/smoke.vdb", 0.1}, {"vdb/smoke.vdb", 0.5}};
-  if (quick) cases.resize(1);
-  for (const auto& [file, iso] : cases) {
-    const std::string path = shared + "/" + file;
-    if (!std::filesystem::exists(path)) continue;
-    cip::VolumeReadOptions read;
-    read.brickCells = 1 << 20;
-    const cip::SparseVolume volume = cip::readVolume(path, read);
+  forEachAnalyticCase(quick,
+                      [&](const std::string& name, int n, cip::NormalMode mode, const cip::AnalyticField&,
+                          const cip::DenseGrid& grid, const cip::BuildOptions& o) {
+                        row(name + " " + std::to_string(n) + " " + cip::toString(mode), grid, o);
+                      });
+  forEachRealCase(shared, quick, [&](const char* file, double iso, const cip::DenseGrid& grid) {
     cip::BuildOptions o;
     o.isovalue = iso;
     char name[128];
-    std::snprintf(name, sizeof name, "%s %g", file.c_str(), iso);
-    row(name, *volume.dense(), o);
-  }
+    std::snprintf(name, sizeof name, "%s %g", file, iso);
+    row(name, grid, o);
+  });
 }
 
 }  // namespace
