@@ -3,8 +3,6 @@
 // tells the paper construction's many leaks on the bundled volume from the fitted construction's few.
 #include <gtest/gtest.h>
 
-#include <array>
-
 #include "cip/analytic_field.h"
 #include "cip/cube_topology.h"
 #include "cip/model_builder.h"
@@ -36,9 +34,7 @@ OpenFace firstOpenFace(const Model& model) {
     const CornerPatch p = model.patch(c);
     for (int f = 0; f < 6; ++f) {
       if ((p.faceMask >> f) & 1) continue;
-      std::array<int, 3> corner{0, 0, 0};
-      corner[static_cast<std::size_t>(cube::faceAxis(f))] = cube::faceSide(f);
-      return {c, f, ((model.cells[c].config >> cube::vertexIndex(corner[0], corner[1], corner[2])) & 1) != 0};
+      return {c, f, ((model.cells[c].config >> cube::faceVertex(f, 0)) & 1) != 0};
     }
   }
   return {};

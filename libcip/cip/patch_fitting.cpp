@@ -94,11 +94,9 @@ struct WorldLattice {
   }
 };
 
-#if defined(__x86_64__) && defined(__has_attribute)
-#if __has_attribute(target)
-#define CIP_POSITIVE_BITS_AVX2 1
+#if defined(CIP_HAS_AVX2_KERNELS)
 /// positiveBits (below) for the values up to a multiple of four, four per comparison; `done` is that count.
-__attribute__((target("avx2"))) std::uint64_t positiveBitsAvx2(const double* values, int count, int& done) {
+CIP_AVX2_KERNEL std::uint64_t positiveBitsAvx2(const double* values, int count, int& done) {
   std::uint64_t bits = 0;
   const __m256d zero = _mm256_setzero_pd();
   int i = 0;
@@ -110,16 +108,14 @@ __attribute__((target("avx2"))) std::uint64_t positiveBitsAvx2(const double* val
   return bits;
 }
 #endif
-#endif
 
 /// Bit i set where values[i] > 0 (false for NaN), for the `count` <= 64 values: the sign changes of a lattice
 /// are found from these bits without a branch per pair. Four values per comparison with AVX2, two with SSE2.
 std::uint64_t positiveBits(const double* values, int count) {
   std::uint64_t bits = 0;
   int i = 0;
-#if defined(CIP_POSITIVE_BITS_AVX2)
-  static const bool avx2 = __builtin_cpu_supports("avx2");
-  if (avx2) bits = positiveBitsAvx2(values, count, i);
+#if defined(CIP_HAS_AVX2_KERNELS)
+  if (hasAvx2()) bits = positiveBitsAvx2(values, count, i);
 #endif
 #if defined(__SSE2__)
   const __m128d zero = _mm_setzero_pd();

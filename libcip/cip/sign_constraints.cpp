@@ -4,6 +4,8 @@
 #include <limits>
 #include <utility>
 
+#include "cip/vector_clones.h"
+
 #if defined(__SSE2__) || defined(__x86_64__)
 #include <immintrin.h>
 #endif
@@ -55,11 +57,9 @@ int sweepSse2(const SignSamples& s, double w, std::uint64_t* failing) {
 }
 #endif
 
-#if defined(__x86_64__) && defined(__has_attribute)
-#if __has_attribute(target)
-#define CIP_SWEEP_AVX2 1
+#if defined(CIP_HAS_AVX2_KERNELS)
 // As sweepSse2, four lanes at a time.
-__attribute__((target("avx2"))) int sweepAvx2(const SignSamples& s, double w, std::uint64_t* failing) {
+CIP_AVX2_KERNEL int sweepAvx2(const SignSamples& s, double w, std::uint64_t* failing) {
   const __m256d ww = _mm256_set1_pd(w), zero = _mm256_setzero_pd(), signBit = _mm256_set1_pd(-0.0),
                 eps = _mm256_set1_pd(CoefficientInterval::kEps),
                 tiny = _mm256_set1_pd(std::numeric_limits<double>::min());
@@ -84,14 +84,12 @@ __attribute__((target("avx2"))) int sweepAvx2(const SignSamples& s, double w, st
   return failures;
 }
 #endif
-#endif
 
 }  // namespace
 
 int slackSweep(const SignSamples& s, double w, std::uint64_t* failing) {
-#if defined(CIP_SWEEP_AVX2)
-  static const bool avx2 = __builtin_cpu_supports("avx2");
-  if (avx2) return sweepAvx2(s, w, failing);
+#if defined(CIP_HAS_AVX2_KERNELS)
+  if (hasAvx2()) return sweepAvx2(s, w, failing);
 #endif
 #if defined(__SSE2__)
   return sweepSse2(s, w, failing);

@@ -4,7 +4,6 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
-#include <array>
 #include <cmath>
 
 #include "cip/bisection.h"
@@ -314,26 +313,26 @@ std::int64_t countOpenFaceLeaks(const Model& model, int lattice) {
   std::vector<std::uint8_t> leaks(model.cells.size(), 0);
   tbb::parallel_for(std::size_t(0), model.cells.size(), [&](std::size_t c) {
     const CornerPatch p = model.patch(c);
-    const std::uint8_t config = model.cells[c].config;
-    for (int f = 0; f < 6 && !leaks[c]; ++f) {
-      if ((p.faceMask >> f) & 1) continue;
-      const int axis = cube::faceAxis(f), side = cube::faceSide(f);
-      std::array<int, 3> corner{0, 0, 0};
-      corner[static_cast<std::size_t>(axis)] = side;
-      const bool positive = (config >> cube::vertexIndex(corner[0], corner[1], corner[2])) & 1;
-      for (int a = 0; a < n && !leaks[c]; ++a)
+    // Whether the patch has the other sign than open face f's corners at a lattice point of the face.
+    auto leaksOn = [&](int f) {
+      const bool positive = (model.cells[c].config >> cube::faceVertex(f, 0)) & 1;  // the corners share it
+      const int axis = cube::faceAxis(f);
+      Vec3 local;
+      local[axis] = cube::faceSide(f);
+      for (int a = 0; a < n; ++a)
         for (int b = 0; b < n; ++b) {
-          Vec3 local;
-          local[axis] = side;
           local[(axis + 1) % 3] = static_cast<double>(a) / (n - 1);
           local[(axis + 2) % 3] = static_cast<double>(b) / (n - 1);
           const double v = p.value(local);
-          if (v != 0 && (v > 0) != positive) {
-            leaks[c] = 1;
-            break;
-          }
+          if (v != 0 && (v > 0) != positive) return true;
         }
-    }
+      return false;
+    };
+    for (int f = 0; f < 6; ++f)
+      if (!((p.faceMask >> f) & 1) && leaksOn(f)) {
+        leaks[c] = 1;
+        break;
+      }
   });
   std::int64_t count = 0;
   for (auto l : leaks) count += l;

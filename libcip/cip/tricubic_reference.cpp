@@ -8,6 +8,7 @@
 #include "cip/cube_topology.h"
 #include "cip/error.h"
 #include "cip/point_hermite.h"
+#include "cip/vector_clones.h"
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -39,14 +40,11 @@ void contractXY(const double* hermite, const double (&w)[3][4], const double (&d
   }
 }
 
-#if defined(__x86_64__) && defined(__has_attribute)
-#if __has_attribute(target)
-#define CIP_CONTRACT_AVX2 1
+#if defined(CIP_HAS_AVX2_KERNELS)
 /// contractXY with the four k in the lanes of a vector (the same operations in the same order, no fused
 /// multiply-add, so the same bits): the Newton steps of the sign checks spend most of their time here.
-__attribute__((target("avx2"))) void contractXYAvx2(const double* hermite, const double (&w)[3][4],
-                                                    const double (&d)[3][4], double* plane, double* planeDx,
-                                                    double* planeDy) {
+CIP_AVX2_KERNEL void contractXYAvx2(const double* hermite, const double (&w)[3][4], const double (&d)[3][4],
+                                    double* plane, double* planeDx, double* planeDy) {
   __m256d p = _mm256_setzero_pd(), px = p, py = p;
   for (int j = 0; j < 4; ++j) {
     // Rows (j, k) for k = 0..3, transposed so that c[i] holds element i of each row, lane k.
@@ -70,7 +68,6 @@ __attribute__((target("avx2"))) void contractXYAvx2(const double* hermite, const
   _mm256_storeu_pd(planeDx, px);
   _mm256_storeu_pd(planeDy, py);
 }
-#endif
 #endif
 
 }  // namespace
@@ -123,9 +120,8 @@ double CellReference::valueAndGradient(const Vec3& local, Vec3& gradient) const 
   double w[3][4], d[3][4];
   for (int a = 0; a < 3; ++a) hermiteWeights(local[a], w[a], d[a]);
   double plane[4], planeDx[4], planeDy[4];
-#if defined(CIP_CONTRACT_AVX2)
-  static const bool avx2 = __builtin_cpu_supports("avx2");
-  if (avx2)
+#if defined(CIP_HAS_AVX2_KERNELS)
+  if (hasAvx2())
     contractXYAvx2(hermite.data(), w, d, plane, planeDx, planeDy);
   else
 #endif

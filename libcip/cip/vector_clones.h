@@ -1,5 +1,6 @@
 /// @file vector_clones.h
-/// @brief CIP_VECTOR_CLONES: compile a hot loop twice, for AVX2 and for the baseline, chosen at run time.
+/// @brief CIP_VECTOR_CLONES: compile a hot loop twice, for AVX2 and for the baseline, chosen at run time; and
+/// CIP_AVX2_KERNEL / hasAvx2() for kernels written with AVX2 intrinsics beside a baseline version.
 ///
 /// Function multi-versioning (GCC and Clang on x86-64 with ifunc support): the AVX2 clone runs the same
 /// operations four doubles at a time. Fused multiply-add is not enabled, so both clones give bit-identical
@@ -24,3 +25,28 @@
 #ifndef CIP_VECTOR_CLONES
 #define CIP_VECTOR_CLONES
 #endif
+
+/// CIP_AVX2_KERNEL marks a function written with AVX2 intrinsics; it is defined, with CIP_HAS_AVX2_KERNELS,
+/// where the compiler takes the target attribute on x86-64 (also under the sanitizers, unlike the clones).
+/// Such a kernel is called only where hasAvx2(), beside a baseline version of the same arithmetic (no fused
+/// multiply-add, so both give the same bits).
+#if defined(__x86_64__) && defined(__has_attribute)
+#if __has_attribute(target)
+#define CIP_HAS_AVX2_KERNELS 1
+#define CIP_AVX2_KERNEL __attribute__((target("avx2")))
+#endif
+#endif
+
+namespace cip {
+
+/// Whether this processor runs AVX2 (asked once).
+inline bool hasAvx2() {
+#if defined(CIP_HAS_AVX2_KERNELS)
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  return avx2;
+#else
+  return false;
+#endif
+}
+
+}  // namespace cip
