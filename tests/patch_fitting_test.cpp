@@ -12,10 +12,13 @@
 
 #include "cip/analytic_field.h"
 #include "cip/continuity_check.h"
+#include "cip/cube_topology.h"
 #include "cip/error.h"
 #include "cip/model_builder.h"
 #include "cip/model_file.h"
+#include "cip/patch_coefficients.h"
 #include "cip/surface_fidelity.h"
+#include "cip/tricubic_reference.h"
 #include "cip/volume_reader.h"
 #include "support/volume_files.h"
 
@@ -89,17 +92,20 @@ TEST(FittedPatches, FallbackRoundThatSpreadsFailuresIsUndone) {
   FittingStats stats;
   o.fittingStats = &stats;
   Model m = buildModel(g, o);
-  EXPECT_EQ(stats.rounds, 2);
   EXPECT_TRUE(stats.lastRoundUndone);
-  EXPECT_EQ(stats.blendedVertices, 0u);
+  EXPECT_LE(stats.rounds, 3);
   EXPECT_GT(stats.unresolvedCells.size(), 0u);
   EXPECT_LT(stats.unresolvedCells.size(), 60u);
   EXPECT_EQ(countSpuriousCells(m, *field, 8, 0.5), 0);
-  // The undone round restored the normals: every one is the exact gradient at its isovertex.
+  // The undone round restored the normals: the isovertices off the exact gradient are the ones the kept
+  // rounds blended, no more.
+  std::size_t blended = 0;
   for (const IsoVertex& v : m.vertices) {
     const Vec3 exact = field->gradient(g.geometry.indexToWorld(v.position)).cwiseProduct(g.geometry.spacing);
-    EXPECT_GT(v.normal.dot(exact.normalized()), 0.999);
+    blended += v.normal.dot(exact.normalized()) < 0.999999;
   }
+  EXPECT_EQ(blended, stats.blendedVertices);
+  EXPECT_LT(stats.blendedVertices, m.vertices.size() / 20);
 }
 
 TEST(FittedPatches, SameModelForAnyThreadCount) {
@@ -325,4 +331,74 @@ TEST(FittedPatches, BoundingFacesHaveTheReferenceSignOnCtData) {
   for (int i = 0; i < 7; ++i) faceLattice.push_back((i + 0.25) / 6.5);
   EXPECT_EQ(countWrongSignFaces(m, reference, faceLattice, 0.3, stats.unresolvedCells), 0);
   EXPECT_EQ(countWrongSignFaces(m, reference, 16, 0.6, stats.unresolvedCells), 0);
+}
+
+namespace {
+
+/// Points of the uncrossed edges of bounding faces where the face restriction (so the patch next to the edge)
+/// has the other sign than the edge's vertices: 255 points inside each such edge of every cell, on the edges
+/// along which the reference `truth` keeps the vertices' sign (at 15 points; where it does not, the
+/// reference surface itself crosses the edge, and the construction follows it). It is 0 along an edge both
+/// of whose ends lie on the isovalue, with both isovertices there: the surface touches the edge, it does not
+/// cross it.
+std::int64_t uncrossedEdgeViolations(const Model& m, const ScalarField& truth) {
+  constexpr int kFirstVertex[4] = {0, 2, 0, 1};  // the canonical vertex at the start of canonical edge k
+  std::int64_t violations = 0;
+  for (std::size_t c = 0; c < m.cells.size(); ++c) {
+    const CornerPatch p = m.patch(c);
+    for (int f = 0; f < 6; ++f) {
+      if (!((p.faceMask >> f) & 1)) continue;
+      const FaceCrossings fc = faceCrossingsOf(p, f, (m.cells[c].pairing03 >> f) & 1);
+      const auto uv = cube::otherAxes(cube::faceAxis(f));
+      for (int k = 0; k < 4; ++k) {
+        if ((fc.crossed >> k) & 1) continue;
+        const bool positive = (m.cells[c].config >> cube::faceVertex(f, kFirstVertex[k])) & 1;
+        auto local = [&](double t) {
+          const double fixed = k & 1;
+          return k < 2 ? Vec2(t, fixed) : Vec2(fixed, t);
+        };
+        bool referenceKeeps = true;
+        for (int i = 1; i < 16 && referenceKeeps; ++i) {
+          const Vec2 q = local(i / 16.0);
+          Vec3 x;
+          x[cube::faceAxis(f)] = cube::faceSide(f);
+          x[uv[0]] = q.x();
+          x[uv[1]] = q.y();
+          referenceKeeps =
+              (truth.value(m.geometry.indexToWorld(m.cellOrigin(c) + x)) > m.isovalue) == positive;
+        }
+        if (!referenceKeeps) continue;
+        for (int i = 1; i < 256; ++i) {
+          const FaceRestriction fr = faceRestriction(fc, local(i / 256.0));
+          const double v = fr.cornerPart + p.faceCoefficient[static_cast<std::size_t>(f)] * fr.sideBasis;
+          violations += positive ? v < 0 : v > 0;
+        }
+      }
+    }
+  }
+  return violations;
+}
+
+}  // namespace
+
+// An edge of a bounding face without a crossing is shared with a face that no patch continues (a face that
+// is not a bounding plane, of this cell or of the cell across), or lies on a second bounding plane, where the
+// patch next to it takes the sign of both faces' restrictions on it. A wrong sign there is a hole. The side
+// coefficients keep the vertices' sign along such edges, also between the points that bind them, unless
+// the reference itself crosses the edge.
+TEST(FittedPatches, UncrossedEdgesOfBoundingFacesKeepTheirVerticesSign) {
+  const SparseVolume blobs = readVolume(test::sourceFile("data/blobs.nrrd"));
+  BuildOptions o;
+  o.isovalue = 128;
+  o.reconstruction = Reconstruction::Central8;  // what auto picks for these samples
+  const TricubicInterpolant reference(*blobs.dense(), Reconstruction::Central8);
+  EXPECT_EQ(uncrossedEdgeViolations(buildModel(*blobs.dense(), o), reference), 0);
+  o.method = PatchMethod::Paper;
+  EXPECT_GT(uncrossedEdgeViolations(buildModel(*blobs.dense(), o), reference), 1000)
+      << "the check sees no wrong sign";
+  const auto torus = makeAnalyticField("torus");
+  EXPECT_EQ(
+      uncrossedEdgeViolations(
+          build(*torus, sampleField(*torus, 32, "torus"), NormalMode::Exact, PatchMethod::Fitted), *torus),
+      0);
 }

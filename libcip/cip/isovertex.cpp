@@ -81,4 +81,24 @@ Vec3 orientCornerNormal(const Vec3& normal, const Vec3& towardsPositive) {
   return n;
 }
 
+Vec3 normalClearOfUncrossedEdges(const DenseGrid& grid, const std::array<std::int64_t, 3>& p, int axis,
+                                 double isovalue, const Vec3& normal, const Vec3& towardsPositive) {
+  const bool above = grid.at(p[0], p[1], p[2]) > isovalue;
+  Vec3 n = normal;
+  for (int other = 0; other < 3; ++other) {
+    if (other == axis) continue;
+    for (int step : {-1, 1}) {
+      auto q = p;
+      q[other] += step;
+      if (q[other] < 0 || q[other] >= grid.geometry.dims[other]) continue;
+      if ((grid.at(q[0], q[1], q[2]) > isovalue) != above) continue;  // a crossed edge
+      // Along the edge the plane changes by n[other] * step per unit; it must not move towards the other
+      // sign.
+      const double along = n[other] * step;
+      if (above ? along < 0 : along > 0) n[other] = 0;
+    }
+  }
+  return orientCornerNormal(n, towardsPositive);
+}
+
 }  // namespace cip

@@ -55,4 +55,14 @@ double exactCrossing(const ScalarField& field, const Vec3& a, const Vec3& b, dou
 /// its own isovertex.
 Vec3 orientCornerNormal(const Vec3& normal, const Vec3& towardsPositive);
 
+/// The normal of an isovertex that lies on grid point p of `grid` (its sample equals the isovalue, so p
+/// counts as below it) on an edge along `axis`, kept from tilting the corner plane across the grid edges
+/// from p that do not cross the isovalue: along such an edge both ends are below, and a normal with a
+/// positive component along it gives the plane, and so the patch, the other sign right next to p, where no
+/// side coefficient can help (the face restriction vanishes at p and starts off with the plane's slope). Such
+/// components are removed (neighbours beyond the grid are left out) and the result oriented as
+/// orientCornerNormal does.
+Vec3 normalClearOfUncrossedEdges(const DenseGrid& grid, const std::array<std::int64_t, 3>& p, int axis,
+                                 double isovalue, const Vec3& normal, const Vec3& towardsPositive);
+
 }  // namespace cip

@@ -313,6 +313,9 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
                 const PointHermiteTable& table = tables[edges[n].brick];
                 t = cubicEdgeVertex(table.at(g.index(lp[0], lp[1], lp[2])),
                                     table.at(g.index(lq[0], lq[1], lq[2])), axis, iso, vx.normal);
+                if (v0 == iso || v1 == iso)  // on a grid point: see normalClearOfUncrossedEdges
+                  vx.normal = normalClearOfUncrossedEdges(g, v0 == iso ? lp : lq, axis, iso, vx.normal,
+                                                          towardsPositive);
               } else if (options.normals == NormalMode::Edge) {
                 vx.normal = towardsPositive;
               } else {

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 #include <numeric>
 #include <vector>
@@ -28,9 +29,8 @@ namespace {
 /// Blend levels of a corner-plane normal: n = normalize((1 - beta) n_gradient + beta e_edge).
 constexpr std::array<double, 5> kBlend{0.0, 0.25, 0.5, 0.75, 1.0};
 constexpr int kMaxLevel = static_cast<int>(kBlend.size()) - 1;
-/// Samples per axis of the sign checks: face lattice (kFaceLattice^2), cell lattice (kCellLattice^3) and the
-/// lattice on the faces of a cell that are not bounding planes (kOpenFaceLattice^2).
-constexpr int kFaceLattice = 7, kCellLattice = 6, kOpenFaceLattice = 5;
+/// Samples per axis of the sign checks: face lattice (kFaceLattice^2) and cell lattice (kCellLattice^3).
+constexpr int kFaceLattice = 7, kCellLattice = 6;
 /// Samples near the surface that the clamping of a cell's coefficient found on the wrong side, from which on
 /// the staggered lattice is checked too (fitCell). About 5 % of the cells on CT and fog volumes reach 6; 3
 /// (a quarter of the cells) removed no more wrong-sign cells, 12 fewer.
@@ -50,7 +50,17 @@ struct LatticeAxis {
 };
 using CellAxis = LatticeAxis<kCellLattice, kCellLattice, 1>;
 using FaceAxis = LatticeAxis<kFaceLattice, kFaceLattice, 1>;
-using OpenFaceAxis = LatticeAxis<kOpenFaceLattice, kOpenFaceLattice, 1>;
+/// The lattice of the sign checks on the faces of a cell that are not bounding planes (openFaceSamples):
+/// 1/3 apart, border included, and a row kNearEdge inside each border, where the slope of the patch across
+/// the edge is taken from.
+constexpr double kNearEdge = 1e-4;
+struct OpenFaceAxis {
+  static constexpr int n = 6;
+  static constexpr double step = 1.0 / 3;  ///< the spacing of the regular points
+  static constexpr double coord(int i) {
+    return i == 0 ? 0.0 : i == 1 ? kNearEdge : i == n - 2 ? 1 - kNearEdge : i == n - 1 ? 1.0 : (i - 1) * step;
+  }
+};
 /// The points halfway between those of CellAxis: with it, a body-centred lattice (see fitCell).
 using StaggeredCellAxis = LatticeAxis<kCellLattice - 1, kCellLattice, 3>;
 /// Samples within kMarginVoxels of the reference surface by the first-order estimate are checked anyway if
@@ -603,9 +613,8 @@ bool neighbourCrosses(const double* r, int index, const LatticeLayout& lattice, 
 /// faceRestriction at the face lattice (index a + n b), by separable products: the perpendicular planes of
 /// canonical edges 0, 1 depend on v only (v, 1 - v), those of edges 2, 3 on u only (u, 1 - u).
 template <class Axis, int n = Axis::n>
-CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face,
-                                              std::array<double, n * n>& __restrict cornerPart,
-                                              std::array<double, n * n>& __restrict sideBasis) {
+CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face, double* __restrict cornerPart,
+                                              double* __restrict sideBasis) {
   // The product of the squared perpendicular planes of a set of crossed edges: those of edges 0, 1 (v, 1 - v)
   // depend on v, those of edges 2, 3 (u, 1 - u) on u, so it is su[a] sv[b] with the squares of
   // LatticeSquares for the patterns (edges >> 2) & 3 along u and edges & 3 along v.
@@ -627,10 +636,149 @@ CIP_VECTOR_CLONES void faceRestrictionLattice(const FaceCrossings& face,
     const double nu = normal.x(), nv = normal.y(), offset = -normal.dot(face.point[k]);
     for (int b = 0; b < n; ++b) {
       const double along = nv * t[b], across = v[b];
-      double* row = cornerPart.data() + n * b;
+      double* row = cornerPart + n * b;
       for (int a = 0; a < n; ++a) row[a] += (nu * t[a] + along + offset) * u[a] * across;
     }
   }
+}
+
+/// Points per canonical edge of a face for uncrossedEdgeSamples, ends included.
+constexpr int kEdgePoints = 9;
+
+/// The canonical vertex (a + 2 b at (u, v) = (a, b)) at the start of canonical edge k.
+constexpr int kEdgeStartVertex[4] = {0, 2, 0, 1};
+
+/// The point at parameter t of canonical edge k of a face (face frame).
+Vec2 canonicalEdgePoint(int k, double t) {
+  const double fixed = k & 1;
+  return k < 2 ? Vec2(t, fixed) : Vec2(fixed, t);
+}
+
+/// Whether the reference keeps the sign of the vertices (`positive`) along canonical edge k of face f of a
+/// cell, at 7 points inside it. Where it does not, the reference surface itself crosses the edge (twice:
+/// the configuration calls it uncrossed), and a side coefficient made to keep the vertices' sign along it
+/// parts the patch from the reference there (Marschner-Lobb, whose ripples cross many such edges: 0.8
+/// degrees more mean normal error at N = 64 in exact mode).
+bool referenceKeepsEdgeSign(const CellReference& ref, int f, int k, bool positive) {
+  const int e = cube::faceEdge(f, k), axis = cube::edgeAxis(e);
+  const auto others = cube::otherAxes(axis);
+  Vec3 x;
+  x[others[0]] = e & 1;
+  x[others[1]] = (e >> 1) & 1;
+  constexpr int stride[3] = {1, 4, 16};
+  // The reference along the edge is the cubic Hermite segment of its end data (values and slopes along it).
+  struct Weights {
+    double w[7][4];
+    Weights() {
+      for (int j = 0; j < 7; ++j) {
+        double dw[4];
+        hermiteWeights((j + 1) / 8.0, w[j], dw);
+      }
+    }
+  };
+  static const Weights weights;
+  double r[7];
+  if (ref.field) {  // the 7 points as a lattice, which fields evaluate faster than point by point
+    double along[7], fixed[2];
+    const GridGeometry& g = *ref.geometry;
+    for (int j = 0; j < 7; ++j)
+      along[j] = g.origin[axis] + g.spacing[axis] * (ref.origin[axis] + (j + 1) / 8.0);
+    for (int i = 0; i < 2; ++i)
+      fixed[i] = g.origin[others[i]] + g.spacing[others[i]] * (ref.origin[others[i]] + x[others[i]]);
+    const double* coordinate[3];
+    std::array<int, 3> count{1, 1, 1}, strides{0, 0, 0};
+    coordinate[axis] = along;
+    coordinate[others[0]] = &fixed[0];
+    coordinate[others[1]] = &fixed[1];
+    count[axis] = 7;
+    strides[axis] = 1;
+    analyticLattice(ref, coordinate, count, strides, r);
+  } else {
+    const double* h =
+        ref.hermite.data() + 2 * (e & 1) * stride[others[0]] + 2 * ((e >> 1) & 1) * stride[others[1]];
+    const int s = stride[axis];
+    for (int j = 0; j < 7; ++j) {
+      const double* w = weights.w[j];
+      r[j] = w[0] * h[0] + w[1] * h[s] + w[2] * h[2 * s] + w[3] * h[3 * s] - ref.isovalue;
+    }
+  }
+  for (int j = 0; j < 7; ++j)
+    if ((r[j] > 0) != positive) return false;
+  return true;
+}
+
+/// Sign samples on canonical edge k of a face, an edge without a crossing (kEdgePoints of them), written as
+/// the fit's samples are: the sign wanted (+1 or -1: that of the edge's vertices, `positive`) in r, the face
+/// restriction's corner part R in a and its side basis D in b. On such an edge
+/// the patch is the face restriction times a factor > 0, or, where the edge lies on a second bounding plane,
+/// zero along the edge itself and the restrictions of both faces times the squared distance from each next
+/// to it. Either way a restriction of the wrong sign on the edge puts the patch's zero set on a face that no
+/// neighbouring patch continues: a hole. Ends where D = 0 (next to a crossing, where the corner planes alone
+/// decide) are left out unless the corner planes give them the wrong sign (then no coefficient meets them).
+/// Returns the number of samples (at most kEdgePoints).
+int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* r, double* a, double* b) {
+  // The edge's points (t = j / (kEdgePoints - 1)), and a point kNearEdge inside each end for the slope there.
+  constexpr int m = kEdgePoints + 2, kStart = kEdgePoints, kEnd = kEdgePoints + 1;
+  double t[m];
+  for (int j = 0; j < kEdgePoints; ++j) t[j] = static_cast<double>(j) / (kEdgePoints - 1);
+  t[kStart] = kNearEdge;
+  t[kEnd] = 1 - kNearEdge;
+  int count = 0;
+  {
+    const double sign = positive ? 1.0 : -1.0;
+    // faceRestriction at the points, all at once. The squared perpendicular planes of canonical edges 0..3
+    // are v^2, (1 - v)^2, u^2, (1 - u)^2; along this edge the one of the parallel edge is 1 (that of the
+    // edge itself, uncrossed, is not used), those of the two perpendicular edges t^2 and (1 - t)^2.
+    const double fixed = k & 1;
+    const int first = k < 2 ? 2 : 0;  // the perpendicular edges: first (at t = 0) and first + 1 (at t = 1)
+    double square[2][m], cornerPart[m], sideBasis[m];
+    for (int j = 0; j < m; ++j) {
+      square[0][j] = t[j] * t[j];
+      square[1][j] = (1 - t[j]) * (1 - t[j]);
+      cornerPart[j] = 0;
+      sideBasis[j] = 1;
+    }
+    auto perpendicularSquare = [&](int c) -> const double* {
+      return c == first ? square[0] : c == first + 1 ? square[1] : nullptr;  // null: the parallel edge, 1
+    };
+    for (int c = 0; c < 4; ++c) {
+      if (!((fc.crossed >> c) & 1)) continue;
+      const Vec2 n = fc.weight[c] * fc.normal[c];
+      const double along = k < 2 ? n.x() : n.y(),
+                   offset = (k < 2 ? n.y() : n.x()) * fixed - n.dot(fc.point[c]);
+      double term[m];
+      for (int j = 0; j < m; ++j) term[j] = along * t[j] + offset;
+      for (int o = 0; o < 4; ++o) {
+        if (o == c || !((fc.crossed >> o) & 1)) continue;
+        if (const double* sq = perpendicularSquare(o))
+          for (int j = 0; j < m; ++j) term[j] *= sq[j];
+      }
+      for (int j = 0; j < m; ++j) cornerPart[j] += term[j];
+      if (const double* sq = perpendicularSquare(c))
+        for (int j = 0; j < m; ++j) sideBasis[j] *= sq[j];
+    }
+    auto add = [&](double cp, double sb) {
+      r[count] = sign, a[count] = cp, b[count] = sb;
+      ++count;
+    };
+    for (int j = 0; j < kEdgePoints; ++j) {
+      if (sideBasis[j] > 0 || sign * cornerPart[j] < 0) {
+        add(cornerPart[j], sideBasis[j]);
+        continue;
+      }
+      // An end next to a crossing (D = 0 there, and D grows with the squared distance d from it) with R of
+      // the right sign or 0: where R starts towards the other sign, R = R0 + R1 d + ... (s R0 >= 0,
+      // s R1 < 0), the bound -s R / D rises to a narrow ridge near d = -2 R0 / R1, often before the next
+      // point. That point is a sample (R1 from the point kNearEdge inside).
+      const double r0 = sign * cornerPart[j],
+                   r1 = (sign * cornerPart[j == 0 ? kStart : kEnd] - r0) / kNearEdge;
+      if (!(r1 < 0) || !(-2 * r0 / r1 < 1.0 / (kEdgePoints - 1))) continue;
+      const double d = std::max(-2 * r0 / r1, kNearEdge);
+      const FaceRestriction fr = faceRestriction(fc, canonicalEdgePoint(k, j == 0 ? d : 1 - d));
+      add(fr.cornerPart, fr.sideBasis);
+    }
+  }
+  return count;
 }
 
 struct FaceEntry {
@@ -645,18 +793,20 @@ struct FaceResult {
 };
 
 /// The side coefficient of face f of a cell (its first cell) with corner data `patch` (coefficients unused),
-/// ambiguous-face pairings `pairing03` and reference `ref`. Where no value meets every counting sample, the
-/// result is not ok and the coefficient is the fit, or with `fallBackToLeastContradicted` the value the
-/// fewest counting samples contradict, nearest to the fit (for the faces still failed after the fallback
-/// rounds).
-FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, const CellReference& ref,
-                   bool fallBackToLeastContradicted = false) {
+/// ambiguous-face pairings `pairing03`, configuration `config` and reference `ref`. Where no value meets
+/// every counting sample, the result is not ok and the coefficient is the fit, or with
+/// `fallBackToLeastContradicted` the value the fewest counting samples contradict, nearest to the fit (for
+/// the faces still failed after the fallback rounds). Where the samples of the uncrossed edges cannot be met
+/// together with the lattice's, the lattice's alone decide.
+FaceResult fitFace(const CornerPatch& patch, std::uint8_t config, std::uint8_t pairing03, int f,
+                   const CellReference& ref, bool fallBackToLeastContradicted = false) {
   FaceCrossings fc = faceCrossingsOf(patch, f, (pairing03 >> f) & 1);
   using Axis = FaceAxis;
   constexpr int n = Axis::n;
-  std::array<double, n * n> r, cornerPart, sideBasis;
+  constexpr int kEdgeSamples = 2 * kEdgePoints;
+  std::array<double, n * n + kEdgeSamples> r, cornerPart, sideBasis;
   referenceFaceLattice<Axis>(ref, f, r.data());
-  faceRestrictionLattice<Axis>(fc, cornerPart, sideBasis);
+  faceRestrictionLattice<Axis>(fc, cornerPart.data(), sideBasis.data());
   // Reference face-curve points: sign changes between neighbouring samples, linearly interpolated.
   double num = 0, den = 0;
   int fitCount = 0;
@@ -694,23 +844,143 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t pairing03, int f, cons
   // the interior.
   const double dCentre = centreSquares(fc.crossed);  // faceRestriction(fc, (0.5, 0.5)).sideBasis
   den += kRidge * dCentre * dCentre * std::max(1, fitCount);
-  const SignSamples samples{r.data(), cornerPart.data(), sideBasis.data(), n * n};
   const LatticeLayout faceLayout =
       LatticeLayout::of<Axis>(2, cube::otherAxes(cube::faceAxis(f)).data(), ref.metric);
   auto far = [&](int i) {
-    return farFromSurface(ref, r[i], faceGradient(ref, f, Axis::coord(i % n), Axis::coord(i / n)));
+    return i >= n * n ||
+           farFromSurface(ref, r[i], faceGradient(ref, f, Axis::coord(i % n), Axis::coord(i / n)));
   };
   auto confirmFar = [&](int i) {
     return !neighbourCrosses(r.data(), i, faceLayout, kVerifiedVoxels) &&
            !referenceSurfaceWithin(ref, faceLatticePoint<Axis>(f, i % n, i / n), r[i], kVerifiedVoxels);
   };
-  const SignedCoefficient sc = solveSignConstraints(-num / den, samples, far, confirmFar);
+  thread_local SignConstraintSolver solver;
+  solver.reset();
+  const double fitted = -num / den;
+  const SignSamples lattice{r.data(), cornerPart.data(), sideBasis.data(), n * n};
+  const SignedCoefficient alone = solver.solve(fitted, lattice, far, confirmFar);
   FaceResult out;
-  out.ok = sc.feasible;
-  out.coefficient = sc.value;
-  if (!sc.feasible && fallBackToLeastContradicted)
-    out.coefficient = leastContradicted(sc.value, samples, far, confirmFar);
+  out.ok = alone.feasible;
+  out.coefficient = alone.value;
+  if (!alone.feasible) {
+    if (fallBackToLeastContradicted)
+      out.coefficient = leastContradicted(alone.value, lattice, far, confirmFar);
+    return out;
+  }
+  // The face's edges without a crossing: there the face restriction must keep the sign of the edge's
+  // vertices everywhere, or the patch's zero set reaches the edge, where no patch continues it (a hole; see
+  // uncrossedEdgeSamples). An edge whose samples the lattice's coefficient fails joins the samples (they
+  // count always), unless the reference itself crosses it (referenceKeepsEdgeSign).
+  int count = n * n;
+  for (int k = 0; k < 4; ++k) {
+    if ((fc.crossed >> k) & 1) continue;
+    const bool positive = (config >> cube::faceVertex(f, kEdgeStartVertex[k])) & 1;
+    const int added = uncrossedEdgeSamples(fc, k, positive, &r[static_cast<std::size_t>(count)],
+                                           &cornerPart[static_cast<std::size_t>(count)],
+                                           &sideBasis[static_cast<std::size_t>(count)]);
+    bool fails = false;
+    for (int i = count; i < count + added; ++i)
+      fails |= CoefficientInterval::slack(positive, cornerPart[static_cast<std::size_t>(i)],
+                                          sideBasis[static_cast<std::size_t>(i)], alone.value) < 0;
+    if (fails && referenceKeepsEdgeSign(ref, f, k, positive)) count += added;
+  }
+  if (count == n * n) return out;
+  // No value meets the edges together with the lattice (the reference bulges towards an edge, or the corner
+  // planes tilt across it): the lattice's stays, as without the edges, and the patch may cross the edge
+  // there, a hole (docs/method.md, "Holes"). Failing the face instead makes the fallback rounds blend
+  // normals, which spread failures (Marschner-Lobb at N = 64: 1,452 blended isovertices against none).
+  const SignedCoefficient both =
+      solver.solve(fitted, {r.data(), cornerPart.data(), sideBasis.data(), count}, far, confirmFar);
+  if (both.feasible) out.coefficient = both.value;
   return out;
+}
+
+/// Samples that openFaceSamples writes at most per face: the lattice and a point next to each lattice point
+/// of the border.
+constexpr int kOpenFaceSamples = OpenFaceAxis::n * OpenFaceAxis::n + 4 * OpenFaceAxis::n + 4;
+
+/// Point (u, v) (face frame) of face f in cell-local coordinates.
+Vec3 facePoint(int f, double u, double v) {
+  const int axis = cube::faceAxis(f);
+  const auto uv = cube::otherAxes(axis);
+  Vec3 x;
+  x[axis] = cube::faceSide(f);
+  x[uv[0]] = u;
+  x[uv[1]] = v;
+  return x;
+}
+
+/// Sign samples of the central coefficient on face f of a cell, a face that is not a bounding plane, written
+/// as the fit's samples are: the sign of the face's corners (`positive`) as +1 or -1 in r, the patch without
+/// the central term A in a, the central basis C in b. The patch must keep that sign on the whole face: no
+/// patch across continues a zero set that reaches it, so a wrong sign there is a hole. The samples are the
+/// OpenFaceAxis lattice, border included (where C = 0, on the face's edges with bounding planes, the side
+/// coefficients decide, uncrossedEdgeSamples, and the sample is written as met), and points next to such
+/// edges where a ridge of the bound may lie: with s the sign, s (A + w C) > 0 means s w > -s A / C, and
+/// next to the edge C grows with the squared distance d from it while A starts at its value A0 there, so
+/// with A = A0 + A1 d + ..., s A0 > 0 and s A1 < 0 the bound rises to a narrow ridge near d = -2 A0 / A1,
+/// often before the lattice's first row (A1 from the lattice's row kNearEdge inside). From the highest such
+/// point of each edge a compass search follows the ridge (along the edge, and towards a corner where two
+/// such edges meet), and its end is one more sample. Returns the number of samples (at most
+/// kOpenFaceSamples).
+int openFaceSamples(const CornerPatch& patch, const LinearTerms& terms, int f, bool positive, double* r,
+                    double* a, double* b) {
+  using Axis = OpenFaceAxis;
+  constexpr int n = Axis::n;
+  const double sign = positive ? 1.0 : -1.0;
+  patchFaceLattice<Axis>(terms, f, a, b);
+  const double* av = a;  // the lattice's A and C, read by the ridge search before the edges are replaced
+  const double* cv = b;
+  int count = n * n;
+  auto add = [&](double aa, double cc) {
+    r[count] = sign, a[count] = aa, b[count] = cc;
+    ++count;
+  };
+  for (int e = 0; e < 4; ++e) {
+    // Edge e: v = 0, v = 1, u = 0, u = 1; the face coordinates at position `along` on the edge and distance
+    // d from it, and the lattice index of point i along the edge, j rows in.
+    auto at = [&](double along, double d) {
+      return e < 2 ? Vec2(along, e == 0 ? d : 1 - d) : Vec2(e == 2 ? d : 1 - d, along);
+    };
+    auto index = [&](int i, int j) {
+      return e == 0 ? i + n * j : e == 1 ? i + n * (n - 1 - j) : e == 2 ? j + n * i : n - 1 - j + n * i;
+    };
+    if (cv[index(n / 2, 0)] > 0) continue;  // not an edge with a bounding plane
+    // The edge's ridge point with the highest bound: face coordinates, A, C and distance from the edge.
+    double bu = 0, bv = 0, ba = 0, bc = 0, best = -std::numeric_limits<double>::infinity(), ridgeStep = 0;
+    for (int i = 2; i < n - 2; ++i) {
+      const double a0 = sign * av[index(i, 0)], slope = (sign * av[index(i, 1)] - a0) / kNearEdge;
+      if (!(a0 > 0) || !(slope < 0) || !(-2 * a0 / slope < Axis::step)) continue;
+      const double d = std::max(-2 * a0 / slope, kNearEdge);
+      const Vec2 p = at(Axis::coord(i), d);
+      const Vec3 x = facePoint(f, p.x(), p.y());
+      const double aa = patch.valueWithoutCentral(x), cc = patch.centralBasis(x);
+      add(aa, cc);
+      if (cc > 0 && -sign * aa / cc > best)
+        best = -sign * aa / cc, bu = p.x(), bv = p.y(), ba = aa, bc = cc, ridgeStep = d;
+    }
+    if (!(ridgeStep > 0)) continue;
+    for (double step = 0.5 * ridgeStep; step > 1e-3 * ridgeStep;) {
+      bool moved = false;
+      for (int dir = 0; dir < 4; ++dir) {
+        const double uu = std::clamp(bu + (dir == 0 ? step : dir == 1 ? -step : 0.0), 0.0, 1.0);
+        const double vv = std::clamp(bv + (dir == 2 ? step : dir == 3 ? -step : 0.0), 0.0, 1.0);
+        const Vec3 x = facePoint(f, uu, vv);
+        const double aa = patch.valueWithoutCentral(x), cc = patch.centralBasis(x);
+        if (cc > 0 && -sign * aa / cc > best) {
+          best = -sign * aa / cc, bu = uu, bv = vv, ba = aa, bc = cc;
+          moved = true;
+        }
+      }
+      if (!moved) step *= 0.5;
+    }
+    add(ba, bc);
+  }
+  for (int k = 0; k < n * n; ++k) {
+    r[k] = sign;
+    if (!(b[k] > 0)) a[k] = sign;  // on an edge with a bounding plane: the side coefficients' (met here)
+  }
+  return count;
 }
 
 struct CellResult {
@@ -718,25 +988,26 @@ struct CellResult {
   bool ok = true;
 };
 
-/// The central coefficient of a cell. Where no value meets every counting sample, the result is not ok and
-/// the coefficient is 0, or with `fallBackToLeastContradicted` the value the fewest counting samples
-/// contradict (see below; only for the cells still unresolved after the fallback rounds, as it examines more
-/// samples). Where only the second look (the staggered lattice) finds no such value, the result is not ok
-/// and the coefficient is that of the cell's own lattice.
-CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
+/// The central coefficient of a cell (configuration `config`). Where no value meets every counting sample,
+/// the result is not ok and the coefficient is 0, or with `fallBackToLeastContradicted` the value the fewest
+/// counting samples contradict, those of the open faces first (see below; only for the cells still
+/// unresolved after the fallback rounds, as it examines more samples). Where the open faces' samples and
+/// the lattice's can each be met but not together, the result is ok and the coefficient is that value.
+/// Where only the second look (the staggered lattice) finds no value, the result is not ok and the
+/// coefficient is that of the cell's own lattice.
+CellResult fitCell(const CornerPatch& patch, std::uint8_t config, const CellReference& ref,
                    bool fallBackToLeastContradicted = false) {
   using Axis = CellAxis;
-  constexpr int n = Axis::n, nf = OpenFaceAxis::n;
+  constexpr int n = Axis::n;
   constexpr int kLattice = n * n * n;
-  // Samples: the inset cell lattice, then the lattices of the cell's faces that are not bounding planes (no
-  // crossing on their edges): the cell across has no patch there or none that joins this one, so a wrong
-  // sign on the face itself would show as a sheet, and the cell lattice stays inset from the faces.
-  // After them, where the cell lattice suggests it (see below), the staggered lattice.
+  // Samples: the inset cell lattice, then the points that bind the coefficient most on each of the cell's
+  // faces that are not bounding planes (no crossing on their edges: the cell across has no patch there or
+  // none that joins this one, so a wrong sign anywhere on such a face is a hole; openFaceSamples). After
+  // them, where the cell lattice suggests it (see below), the staggered lattice.
   using Staggered = StaggeredCellAxis;
   constexpr int kStaggered = Staggered::n * Staggered::n * Staggered::n;
-  std::array<double, kLattice + 6 * nf * nf + kStaggered> r, value, basis;
-  std::array<int, 6> openFace{};
-  int numOpen = 0;
+  constexpr int kOpen = 6 * kOpenFaceSamples;
+  std::array<double, kLattice + kOpen + kStaggered> r, value, basis;
   // Fit points lie on the lattice lines along the axis closest to the mean corner normal.
   Vec3 meanNormal = Vec3::Zero();
   for (int k = 0; k < patch.numCorners; ++k) meanNormal += patch.normal[k];
@@ -746,26 +1017,35 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   const PatchLines<Axis> lines(terms, fitAxis);
   referenceCellLattice<Axis>(ref, fitAxis, r.data());
   lines.lattice(value.data(), basis.data());
-  for (int f = 0; f < 6; ++f) {
-    if ((patch.faceMask >> f) & 1) continue;
-    const int offset = kLattice + nf * nf * numOpen;
-    openFace[static_cast<std::size_t>(numOpen++)] = f;
-    referenceFaceLattice<OpenFaceAxis>(ref, f, r.data() + offset);
-    patchFaceLattice<OpenFaceAxis>(terms, f, value.data() + offset, basis.data() + offset);
-  }
-  // Sample i >= kLattice: its open face (index into openFace) and its index on that face's lattice.
-  auto openSample = [&](int i) {
-    return std::array<int, 2>{(i - kLattice) / (nf * nf), (i - kLattice) % (nf * nf)};
-  };
-  const int staggeredBegin = kLattice + nf * nf * numOpen;
-  // The staggered lattice's patch lines, while the second look below has them (a pointer rather than an
-  // optional: the optional's storage, 2 KB, was zero-filled in every cell).
+  // The open faces' samples, face after face (the first OpenFaceAxis::n^2 of each are its lattice).
+  int count = kLattice, numOpen = 0;
+  std::array<std::array<int, 2>, 6> open;  // face, first sample
+  for (int f = 0; f < 6; ++f)
+    if (!((patch.faceMask >> f) & 1)) {
+      open[static_cast<std::size_t>(numOpen++)] = {f, count};
+      count += openFaceSamples(patch, terms, f, (config >> cube::faceVertex(f, 0)) & 1, &r[count],
+                               &value[count], &basis[count]);
+    }
+  // The staggered lattice's patch lines and where its samples begin, while the second look below has them
+  // (a pointer rather than an optional: the optional's storage, 2 KB, was zero-filled in every cell).
   const PatchLines<Staggered>* staggeredLines = nullptr;
+  int staggeredBegin = -1;
+  auto staggeredSample = [&](int i) {
+    return staggeredBegin >= 0 && i >= staggeredBegin && i < staggeredBegin + kStaggered;
+  };
+  // Where the open faces cannot be met with the lattice, their lattice points where the reference agrees
+  // with the corners join the lattice's samples as reference samples (see the end): `softOpen`, and per such
+  // sample its face and index on the face's lattice.
+  bool softOpen = false;
+  std::array<std::array<int, 2>, 6 * OpenFaceAxis::n * OpenFaceAxis::n> faceOf;
+  auto openPoint = [&](int i) {
+    const auto [f, j] = faceOf[static_cast<std::size_t>(i - kLattice)];
+    return facePoint(f, OpenFaceAxis::coord(j % OpenFaceAxis::n), OpenFaceAxis::coord(j / OpenFaceAxis::n));
+  };
   auto position = [&](int i) {
     if (i < kLattice) return lines.point(i);
-    if (i >= staggeredBegin) return staggeredLines->point(i - staggeredBegin);
-    const auto [face, j] = openSample(i);
-    return faceLatticePoint<OpenFaceAxis>(openFace[static_cast<std::size_t>(face)], j % nf, j / nf);
+    if (!staggeredSample(i)) return openPoint(i);  // softOpen
+    return staggeredLines->point(i - staggeredBegin);
   };
   // Least-squares fit to the reference surface points between lattice neighbours along the fit axis (linear
   // interpolation of the reference), where the patch is evaluated exactly.
@@ -799,42 +1079,48 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   // Samples within the margin by the first-order estimate are left free, but where the clamped coefficient
   // gives one of them the wrong sign, the estimate is checked by Newton steps on the reference; a sample that
   // turns out farther than kVerifiedVoxels from the surface counts after all.
-  const SignSamples samples{r.data(), value.data(), basis.data(), kLattice + nf * nf * numOpen};
   auto far = [&](int i) {
-    Vec3 g;
-    if (i < kLattice) {
-      g = lines.gradient(r.data(), i);
-    } else if (i >= staggeredBegin) {
-      g = staggeredLines->gradient(r.data() + staggeredBegin, i - staggeredBegin);
-    } else {
-      const auto [face, j] = openSample(i);
-      g = faceGradient(ref, openFace[static_cast<std::size_t>(face)], OpenFaceAxis::coord(j % nf),
-                       OpenFaceAxis::coord(j / nf));
+    if (i >= kLattice && !staggeredSample(i)) {
+      if (!softOpen) return true;  // an open-face sample counts always
+      const auto [f, j] = faceOf[static_cast<std::size_t>(i - kLattice)];
+      return farFromSurface(ref, r[static_cast<std::size_t>(i)],
+                            faceGradient(ref, f, OpenFaceAxis::coord(j % OpenFaceAxis::n),
+                                         OpenFaceAxis::coord(j / OpenFaceAxis::n)));
     }
+    const Vec3 g = i < kLattice ? lines.gradient(r.data(), i)
+                                : staggeredLines->gradient(r.data() + staggeredBegin, i - staggeredBegin);
     return farFromSurface(ref, r[static_cast<std::size_t>(i)], g);
   };
   const int lineAxes[3] = {fitAxis, cube::otherAxes(fitAxis)[0], cube::otherAxes(fitAxis)[1]};
   const LatticeLayout cellLayout = LatticeLayout::of<Axis>(3, lineAxes, ref.metric);
   auto confirmFar = [&](int i) {
-    bool near;
-    if (i < kLattice) {
-      near = neighbourCrosses(r.data(), i, cellLayout, kVerifiedVoxels);
-    } else if (i >= staggeredBegin) {
-      near = neighbourCrosses(r.data() + staggeredBegin, i - staggeredBegin,
-                              LatticeLayout::of<Staggered>(3, lineAxes, ref.metric), kVerifiedVoxels);
-    } else {
-      const auto [face, j] = openSample(i);
-      const auto uv = cube::otherAxes(cube::faceAxis(openFace[static_cast<std::size_t>(face)]));
-      near = neighbourCrosses(r.data() + kLattice + face * nf * nf, j,
-                              LatticeLayout::of<OpenFaceAxis>(2, uv.data(), ref.metric), kVerifiedVoxels);
-    }
+    if (i >= kLattice && !staggeredSample(i))  // softOpen: Newton steps only
+      return !referenceSurfaceWithin(ref, openPoint(i), r[static_cast<std::size_t>(i)], kVerifiedVoxels);
+    const bool near = i < kLattice ? neighbourCrosses(r.data(), i, cellLayout, kVerifiedVoxels)
+                                   : neighbourCrosses(r.data() + staggeredBegin, i - staggeredBegin,
+                                                      LatticeLayout::of<Staggered>(3, lineAxes, ref.metric),
+                                                      kVerifiedVoxels);
     return !near &&
            !referenceSurfaceWithin(ref, position(i), r[static_cast<std::size_t>(i)], kVerifiedVoxels);
   };
   const double fitted = fitCount > 0 ? -num / den : 0.0;
-  thread_local SignConstraintSolver solver;
+  // The lattice first; the open faces' samples join where its coefficient fails one of them (and the solver
+  // as it was before them is kept for the case that they cannot be met with the lattice, below).
+  thread_local SignConstraintSolver solver, latticeOnly;
   solver.reset();
-  SignedCoefficient sc = solver.solve(fitted, samples, far, confirmFar);
+  const SignedCoefficient lattice =
+      solver.solve(fitted, {r.data(), value.data(), basis.data(), kLattice}, far, confirmFar);
+  SignedCoefficient sc = lattice;
+  bool openFails = false;
+  if (lattice.feasible)
+    for (int i = kLattice; i < count && !openFails; ++i)
+      openFails =
+          CoefficientInterval::slack(r[static_cast<std::size_t>(i)] > 0, value[static_cast<std::size_t>(i)],
+                                     basis[static_cast<std::size_t>(i)], lattice.value) < 0;
+  if (openFails) {
+    latticeOnly = solver;
+    sc = solver.solve(fitted, {r.data(), value.data(), basis.data(), count}, far, confirmFar);
+  }
   // A second look, between the lattice points: where the clamping found kStaggeredTrigger or more samples on
   // the wrong side that lie near the surface, the patch and the reference part ways inside the cell, and a
   // wrong sign farther out can hide between the lattice points. The staggered lattice (with the cell
@@ -844,21 +1130,50 @@ CellResult fitCell(const CornerPatch& patch, const CellReference& ref,
   if (sc.feasible && solver.confirmedNear() >= kStaggeredTrigger) {
     const PatchLines<Staggered> staggered(terms, fitAxis);
     staggeredLines = &staggered;
+    staggeredBegin = count;
     referenceCellLattice<Staggered>(ref, fitAxis, r.data() + staggeredBegin);
     staggeredLines->lattice(value.data() + staggeredBegin, basis.data() + staggeredBegin);
-    const SignSamples all{r.data(), value.data(), basis.data(), staggeredBegin + kStaggered};
-    const SignedCoefficient both = solver.solve(fitted, all, far, confirmFar);
-    staggeredLines = nullptr;  // `staggered` ends here; the samples below are the cell's own lattice's
-    if (!both.feasible) return CellResult{sc.value, false};
-    sc = both;
+    count += kStaggered;
+    const SignedCoefficient first = sc;
+    sc = solver.solve(fitted, {r.data(), value.data(), basis.data(), count}, far, confirmFar);
+    staggeredLines = nullptr;  // `staggered` ends here; no sample is examined after it
+    if (!sc.feasible) return CellResult{first.value, false};
   }
   CellResult out;
   out.ok = sc.feasible;
   out.central = sc.feasible ? sc.value : 0.0;
+  if (sc.feasible) return out;
+  // No value meets the open faces together with the lattice: the reference crosses an open face or bulges
+  // towards it with sign structure the cell's loops do not have (Marschner-Lobb), or the patch without the
+  // central term is too far off there. Then the open faces' lattice points count only where the reference
+  // has the corners' sign too, and only where it lies away from its surface, as the cell lattice's do: where
+  // the reference crosses the face the patch follows it, and the surface has a hole there (docs/method.md,
+  // "Holes"); failing the cell instead makes the fallback rounds blend normals, which spread failures.
+  constexpr int nf = OpenFaceAxis::n;
+  int kept = kLattice;
+  for (int k = 0; k < numOpen; ++k) {
+    std::array<double, nf * nf> reference;
+    referenceFaceLattice<OpenFaceAxis>(ref, open[static_cast<std::size_t>(k)][0], reference.data());
+    for (int j = 0; j < nf * nf; ++j) {
+      const int i = open[static_cast<std::size_t>(k)][1] + j;
+      if ((reference[static_cast<std::size_t>(j)] > 0) != (r[static_cast<std::size_t>(i)] > 0)) continue;
+      r[static_cast<std::size_t>(kept)] = reference[static_cast<std::size_t>(j)];
+      value[static_cast<std::size_t>(kept)] = value[static_cast<std::size_t>(i)];
+      basis[static_cast<std::size_t>(kept)] = basis[static_cast<std::size_t>(i)];
+      faceOf[static_cast<std::size_t>(kept - kLattice)] = {open[static_cast<std::size_t>(k)][0], j};
+      ++kept;
+    }
+  }
+  softOpen = true;
+  const SignSamples agreeing{r.data(), value.data(), basis.data(), kept};
+  if (lattice.feasible) {  // the lattice's samples are known to latticeOnly; it examines the others only
+    const SignedCoefficient alone = latticeOnly.solve(fitted, agreeing, far, confirmFar);
+    out.ok = alone.feasible;
+    out.central = alone.feasible ? alone.value : 0.0;
+  }
   // No coefficient meets every counting sample: the one that the fewest contradict, nearest to 0 (better than
   // the fit there: Marschner-Lobb at N = 32 exact has 0 wrong-sign cells with 0, 96 with the fit).
-  if (!sc.feasible && fallBackToLeastContradicted)
-    out.central = leastContradicted(0.0, samples, far, confirmFar);
+  if (!out.ok && fallBackToLeastContradicted) out.central = leastContradicted(0.0, agreeing, far, confirmFar);
   return out;
 }
 
@@ -1000,14 +1315,15 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
         const FaceEntry& face = faces[static_cast<std::size_t>(i)];
         const std::size_t first = face.cell[0];
         if (first != c) reference(first, firstRef);
-        const FaceResult fr = first == c ? fitFace(patch, model.cells[c].pairing03, face.face[0], ref)
-                                         : fitFace(model.patch(first, loops[first]),
-                                                   model.cells[first].pairing03, face.face[0], firstRef);
+        const FaceResult fr =
+            first == c ? fitFace(patch, model.cells[c].config, model.cells[c].pairing03, face.face[0], ref)
+                       : fitFace(model.patch(first, loops[first]), model.cells[first].config,
+                                 model.cells[first].pairing03, face.face[0], firstRef);
         if (!fr.ok) return;
         patch.faceCoefficient[static_cast<std::size_t>(f)] = fr.coefficient;
       }
       patch.central = 0;
-      if (fitCell(patch, ref).ok) found.store(true, std::memory_order_relaxed);
+      if (fitCell(patch, model.cells[c].config, ref).ok) found.store(true, std::memory_order_relaxed);
     });
     return found.load();
   };
@@ -1050,25 +1366,25 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     // each cell's reference is built once per round for its faces and itself.
     for (std::size_t b0 = 0; b0 < dirtyCells.size(); b0 += kBlockCells) {
       const std::size_t b1 = std::min(dirtyCells.size(), b0 + kBlockCells);
-      tbb::parallel_for(tbb::blocked_range<std::size_t>(b0, b1, 32),
-                        [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t j = r.begin(); j != r.end(); ++j) {
-                            const std::size_t c = dirtyCells[j];
-                            CellReference& ref = blockReference[j - b0];
-                            reference(c, ref);
-                            unsigned fits = 0;  // the faces this cell fits now
-                            for (int f = 0; f < 6; ++f) fits |= unsigned{ownedDirtyFace(c, f)} << f;
-                            if (!fits) continue;
-                            const CornerPatch patch = model.patch(c, loops[c]);
-                            for (int f = 0; f < 6; ++f) {
-                              if (!((fits >> f) & 1)) continue;
-                              const auto i = static_cast<std::size_t>(cellFaces[c][f]);
-                              const FaceResult fr = fitFace(patch, model.cells[c].pairing03, f, ref);
-                              faceCoefficient[i] = fr.coefficient;
-                              faceOk[i] = fr.ok;
-                            }
-                          }
-                        });
+      tbb::parallel_for(
+          tbb::blocked_range<std::size_t>(b0, b1, 32), [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t j = r.begin(); j != r.end(); ++j) {
+              const std::size_t c = dirtyCells[j];
+              CellReference& ref = blockReference[j - b0];
+              reference(c, ref);
+              unsigned fits = 0;  // the faces this cell fits now
+              for (int f = 0; f < 6; ++f) fits |= unsigned{ownedDirtyFace(c, f)} << f;
+              if (!fits) continue;
+              const CornerPatch patch = model.patch(c, loops[c]);
+              for (int f = 0; f < 6; ++f) {
+                if (!((fits >> f) & 1)) continue;
+                const auto i = static_cast<std::size_t>(cellFaces[c][f]);
+                const FaceResult fr = fitFace(patch, model.cells[c].config, model.cells[c].pairing03, f, ref);
+                faceCoefficient[i] = fr.coefficient;
+                faceOk[i] = fr.ok;
+              }
+            }
+          });
       for (std::size_t j = b0; j < b1; ++j)
         for (int f = 0; f < 6; ++f) {
           const std::size_t c = dirtyCells[j];
@@ -1078,16 +1394,17 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
             model.cells[face.cell[s]].faceCoefficient[face.face[s]] =
                 faceCoefficient[static_cast<std::size_t>(cellFaces[c][f])];
         }
-      tbb::parallel_for(tbb::blocked_range<std::size_t>(b0, b1, 32),
-                        [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t j = r.begin(); j != r.end(); ++j) {
-                            const std::size_t c = dirtyCells[j];
-                            model.cells[c].central = 0;
-                            const CellResult cr = fitCell(model.patch(c, loops[c]), blockReference[j - b0]);
-                            model.cells[c].central = cr.central;
-                            cellOk[c] = cr.ok;
-                          }
-                        });
+      tbb::parallel_for(
+          tbb::blocked_range<std::size_t>(b0, b1, 32), [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t j = r.begin(); j != r.end(); ++j) {
+              const std::size_t c = dirtyCells[j];
+              model.cells[c].central = 0;
+              const CellResult cr =
+                  fitCell(model.patch(c, loops[c]), model.cells[c].config, blockReference[j - b0]);
+              model.cells[c].central = cr.central;
+              cellOk[c] = cr.ok;
+            }
+          });
     }
     // A fallback round that does not reduce the unresolved cells is undone, and the rounds end: blending
     // normals cannot make a cell follow sign structure its loops do not have (a field with detail inside
@@ -1202,8 +1519,9 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     const std::size_t c = face.cell[0];
     CellReference ref;
     reference(c, ref);
-    faceCoefficient[failedFaces[j]] =
-        fitFace(model.patch(c, loops[c]), model.cells[c].pairing03, face.face[0], ref, true).coefficient;
+    faceCoefficient[failedFaces[j]] = fitFace(model.patch(c, loops[c]), model.cells[c].config,
+                                              model.cells[c].pairing03, face.face[0], ref, true)
+                                          .coefficient;
   });
   std::vector<std::uint8_t> refit(numCells, 0);
   for (std::uint32_t i : failedFaces) {
@@ -1221,7 +1539,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     model.cells[c].central = 0;
     CellReference ref;
     reference(c, ref);
-    const CellResult cr = fitCell(model.patch(c, loops[c]), ref, true);
+    const CellResult cr = fitCell(model.patch(c, loops[c]), model.cells[c].config, ref, true);
     model.cells[c].central = cr.central;
     cellOk[c] = cr.ok;
   });
