@@ -895,8 +895,8 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t config, std::uint8_t p
   return out;
 }
 
-/// Samples that openFaceSamples writes at most per face: the lattice and a point next to each lattice point
-/// of the border.
+/// Samples that openFaceSamples writes at most per face: the lattice, a point next to each lattice point of
+/// the border and the end of one search per edge.
 constexpr int kOpenFaceSamples = OpenFaceAxis::n * OpenFaceAxis::n + 4 * OpenFaceAxis::n + 4;
 
 /// Point (u, v) (face frame) of face f in cell-local coordinates.
@@ -1000,10 +1000,10 @@ CellResult fitCell(const CornerPatch& patch, std::uint8_t config, const CellRefe
   using Axis = CellAxis;
   constexpr int n = Axis::n;
   constexpr int kLattice = n * n * n;
-  // Samples: the inset cell lattice, then the points that bind the coefficient most on each of the cell's
-  // faces that are not bounding planes (no crossing on their edges: the cell across has no patch there or
-  // none that joins this one, so a wrong sign anywhere on such a face is a hole; openFaceSamples). After
-  // them, where the cell lattice suggests it (see below), the staggered lattice.
+  // Samples: the inset cell lattice, then the samples of each of the cell's faces that are not bounding
+  // planes (no crossing on their edges: the cell across has no patch there or none that joins this one, so a
+  // wrong sign anywhere on such a face is a hole; openFaceSamples). After them, where the cell lattice
+  // suggests it (see below), the staggered lattice.
   using Staggered = StaggeredCellAxis;
   constexpr int kStaggered = Staggered::n * Staggered::n * Staggered::n;
   constexpr int kOpen = 6 * kOpenFaceSamples;
