@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <cstdlib>
 #include <limits>
 #include <numeric>
 #include <vector>
@@ -709,13 +708,13 @@ bool referenceKeepsEdgeSign(const CellReference& ref, int f, int k, bool positiv
 
 /// Sign samples on canonical edge k of a face, an edge without a crossing (kEdgePoints of them), written as
 /// the fit's samples are: the sign wanted (+1 or -1: that of the edge's vertices, `positive`) in r, the face
-/// restriction's corner part R in a and its side basis D in b. On such an edge
-/// the patch is the face restriction times a factor > 0, or, where the edge lies on a second bounding plane,
-/// zero along the edge itself and the restrictions of both faces times the squared distance from each next
-/// to it. Either way a restriction of the wrong sign on the edge puts the patch's zero set on a face that no
-/// neighbouring patch continues: a hole. Ends where D = 0 (next to a crossing, where the corner planes alone
-/// decide) are left out unless the corner planes give them the wrong sign (then no coefficient meets them).
-/// Returns the number of samples (at most kEdgePoints).
+/// restriction's corner part R in a and its side basis D in b. On such an edge the patch is the face
+/// restriction times a factor > 0, or, where the edge lies on a second bounding plane, zero along the edge
+/// itself and the restrictions of both faces times the squared distance from each next to it. Either way a
+/// restriction of the wrong sign on the edge puts the patch's zero set on a face that no neighbouring patch
+/// continues: a hole. Ends where D = 0 (next to a crossing, where the corner planes alone decide) are left
+/// out unless the corner planes give them the wrong sign (then no coefficient meets them). Returns the number
+/// of samples (at most kEdgePoints).
 int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* r, double* a, double* b) {
   // The edge's points (t = j / (kEdgePoints - 1)), and a point kNearEdge inside each end for the slope there.
   constexpr int m = kEdgePoints + 2, kStart = kEdgePoints, kEnd = kEdgePoints + 1;
@@ -724,59 +723,55 @@ int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* 
   t[kStart] = kNearEdge;
   t[kEnd] = 1 - kNearEdge;
   int count = 0;
-  {
-    const double sign = positive ? 1.0 : -1.0;
-    // faceRestriction at the points, all at once. The squared perpendicular planes of canonical edges 0..3
-    // are v^2, (1 - v)^2, u^2, (1 - u)^2; along this edge the one of the parallel edge is 1 (that of the
-    // edge itself, uncrossed, is not used), those of the two perpendicular edges t^2 and (1 - t)^2.
-    const double fixed = k & 1;
-    const int first = k < 2 ? 2 : 0;  // the perpendicular edges: first (at t = 0) and first + 1 (at t = 1)
-    double square[2][m], cornerPart[m], sideBasis[m];
-    for (int j = 0; j < m; ++j) {
-      square[0][j] = t[j] * t[j];
-      square[1][j] = (1 - t[j]) * (1 - t[j]);
-      cornerPart[j] = 0;
-      sideBasis[j] = 1;
+  const double sign = positive ? 1.0 : -1.0;
+  // faceRestriction at the points, all at once. The squared perpendicular planes of canonical edges 0..3
+  // are v^2, (1 - v)^2, u^2, (1 - u)^2; along this edge the one of the parallel edge is 1 (that of the
+  // edge itself, uncrossed, is not used), those of the two perpendicular edges t^2 and (1 - t)^2.
+  const double fixed = k & 1;
+  const int first = k < 2 ? 2 : 0;  // the perpendicular edges: first (at t = 0) and first + 1 (at t = 1)
+  double square[2][m], cornerPart[m], sideBasis[m];
+  for (int j = 0; j < m; ++j) {
+    square[0][j] = t[j] * t[j];
+    square[1][j] = (1 - t[j]) * (1 - t[j]);
+    cornerPart[j] = 0;
+    sideBasis[j] = 1;
+  }
+  auto perpendicularSquare = [&](int c) -> const double* {
+    return c == first ? square[0] : c == first + 1 ? square[1] : nullptr;  // null: the parallel edge, 1
+  };
+  for (int c = 0; c < 4; ++c) {
+    if (!((fc.crossed >> c) & 1)) continue;
+    const Vec2 n = fc.weight[c] * fc.normal[c];
+    const double along = k < 2 ? n.x() : n.y(), offset = (k < 2 ? n.y() : n.x()) * fixed - n.dot(fc.point[c]);
+    double term[m];
+    for (int j = 0; j < m; ++j) term[j] = along * t[j] + offset;
+    for (int o = 0; o < 4; ++o) {
+      if (o == c || !((fc.crossed >> o) & 1)) continue;
+      if (const double* sq = perpendicularSquare(o))
+        for (int j = 0; j < m; ++j) term[j] *= sq[j];
     }
-    auto perpendicularSquare = [&](int c) -> const double* {
-      return c == first ? square[0] : c == first + 1 ? square[1] : nullptr;  // null: the parallel edge, 1
-    };
-    for (int c = 0; c < 4; ++c) {
-      if (!((fc.crossed >> c) & 1)) continue;
-      const Vec2 n = fc.weight[c] * fc.normal[c];
-      const double along = k < 2 ? n.x() : n.y(),
-                   offset = (k < 2 ? n.y() : n.x()) * fixed - n.dot(fc.point[c]);
-      double term[m];
-      for (int j = 0; j < m; ++j) term[j] = along * t[j] + offset;
-      for (int o = 0; o < 4; ++o) {
-        if (o == c || !((fc.crossed >> o) & 1)) continue;
-        if (const double* sq = perpendicularSquare(o))
-          for (int j = 0; j < m; ++j) term[j] *= sq[j];
-      }
-      for (int j = 0; j < m; ++j) cornerPart[j] += term[j];
-      if (const double* sq = perpendicularSquare(c))
-        for (int j = 0; j < m; ++j) sideBasis[j] *= sq[j];
+    for (int j = 0; j < m; ++j) cornerPart[j] += term[j];
+    if (const double* sq = perpendicularSquare(c))
+      for (int j = 0; j < m; ++j) sideBasis[j] *= sq[j];
+  }
+  auto add = [&](double cp, double sb) {
+    r[count] = sign, a[count] = cp, b[count] = sb;
+    ++count;
+  };
+  for (int j = 0; j < kEdgePoints; ++j) {
+    if (sideBasis[j] > 0 || sign * cornerPart[j] < 0) {
+      add(cornerPart[j], sideBasis[j]);
+      continue;
     }
-    auto add = [&](double cp, double sb) {
-      r[count] = sign, a[count] = cp, b[count] = sb;
-      ++count;
-    };
-    for (int j = 0; j < kEdgePoints; ++j) {
-      if (sideBasis[j] > 0 || sign * cornerPart[j] < 0) {
-        add(cornerPart[j], sideBasis[j]);
-        continue;
-      }
-      // An end next to a crossing (D = 0 there, and D grows with the squared distance d from it) with R of
-      // the right sign or 0: where R starts towards the other sign, R = R0 + R1 d + ... (s R0 >= 0,
-      // s R1 < 0), the bound -s R / D rises to a narrow ridge near d = -2 R0 / R1, often before the next
-      // point. That point is a sample (R1 from the point kNearEdge inside).
-      const double r0 = sign * cornerPart[j],
-                   r1 = (sign * cornerPart[j == 0 ? kStart : kEnd] - r0) / kNearEdge;
-      if (!(r1 < 0) || !(-2 * r0 / r1 < 1.0 / (kEdgePoints - 1))) continue;
-      const double d = std::max(-2 * r0 / r1, kNearEdge);
-      const FaceRestriction fr = faceRestriction(fc, canonicalEdgePoint(k, j == 0 ? d : 1 - d));
-      add(fr.cornerPart, fr.sideBasis);
-    }
+    // An end next to a crossing (D = 0 there, and D grows with the squared distance d from it) with R of
+    // the right sign or 0: where R starts towards the other sign, R = R0 + R1 d + ... (s R0 >= 0,
+    // s R1 < 0), the bound -s R / D rises to a narrow ridge near d = -2 R0 / R1, often before the next
+    // point. That point is a sample (R1 from the point kNearEdge inside).
+    const double r0 = sign * cornerPart[j], r1 = (sign * cornerPart[j == 0 ? kStart : kEnd] - r0) / kNearEdge;
+    if (!(r1 < 0) || !(-2 * r0 / r1 < 1.0 / (kEdgePoints - 1))) continue;
+    const double d = std::max(-2 * r0 / r1, kNearEdge);
+    const FaceRestriction fr = faceRestriction(fc, canonicalEdgePoint(k, j == 0 ? d : 1 - d));
+    add(fr.cornerPart, fr.sideBasis);
   }
   return count;
 }
