@@ -14,9 +14,13 @@
 ///  - central coefficient: per cell.
 /// On each face, w_f is the least-squares fit of the face curve to reference face-curve points, clamped into
 /// the interval of w for which the face restriction has the reference's sign at every face sample lying more
-/// than a margin from the reference surface. In each cell the central coefficient is fitted to interior
-/// reference surface points and clamped into the interval that keeps the reference's sign at interior lattice
-/// points away from the surface and on the cell's faces that are not bounding planes. Samples (of faces and
+/// than a margin from the reference surface, and, where that value fails them, the sign of the vertices
+/// along the face's edges without a crossing (unless the reference itself crosses such an edge). In each cell
+/// the central coefficient is fitted to interior reference surface points and clamped into the interval that
+/// keeps the reference's sign at interior lattice points away from the surface and, where that value fails
+/// them, the corners' sign on the cell's faces that are not bounding planes. Those edges and faces are
+/// continued by no neighbouring patch, so a wrong sign there would be a hole; where they cannot be met with
+/// the lattice, the lattice decides (docs/method.md, step 7). Samples (of faces and
 /// cells) the first-order distance estimate calls near the surface are checked by Newton steps on the
 /// reference where the patch gives them the wrong sign. When an interval is empty, the face or cell fails,
 /// and the normals of all its isovertices move one step from the gradient towards the edge direction (blend
