@@ -199,17 +199,22 @@ void referenceCellLattice(const CellReference& ref, int L, double* out) {
   tricubicLatticeInLineOrder<Axis>(ref.hermite.data(), ref.isovalue, L, other[0], other[1], out);
 }
 
-/// Cell-local position of lattice point (a, b) of face f (face frame: a along otherAxes[0], b along
-/// otherAxes[1]).
-template <class Axis, int n = Axis::n>
-Vec3 faceLatticePoint(int f, int a, int b) {
+/// Point (u, v) (face frame) of face f in cell-local coordinates.
+Vec3 facePoint(int f, double u, double v) {
   const int axis = cube::faceAxis(f);
   const auto uv = cube::otherAxes(axis);
   Vec3 x;
   x[axis] = cube::faceSide(f);
-  x[uv[0]] = Axis::coord(a);
-  x[uv[1]] = Axis::coord(b);
+  x[uv[0]] = u;
+  x[uv[1]] = v;
   return x;
+}
+
+/// Cell-local position of lattice point (a, b) of face f (face frame: a along otherAxes[0], b along
+/// otherAxes[1]).
+template <class Axis, int n = Axis::n>
+Vec3 faceLatticePoint(int f, int a, int b) {
+  return facePoint(f, Axis::coord(a), Axis::coord(b));
 }
 
 /// The bicubic Hermite interpolant of face data `face` ([u index][v index], Hermite indices as in
@@ -653,6 +658,12 @@ Vec2 canonicalEdgePoint(int k, double t) {
   return k < 2 ? Vec2(t, fixed) : Vec2(fixed, t);
 }
 
+/// The 7 points inside an edge at which referenceKeepsEdgeSign looks: 1/8 apart.
+struct EdgeCheckAxis {
+  static constexpr int n = 7;
+  static constexpr double coord(int i) { return (i + 1) / 8.0; }
+};
+
 /// Whether the reference keeps the sign of the vertices (`positive`) along canonical edge k of face f of a
 /// cell, at 7 points inside it. Where it does not, the reference surface itself crosses the edge (twice:
 /// the configuration calls it uncrossed), and a side coefficient made to keep the vertices' sign along it
@@ -666,22 +677,13 @@ bool referenceKeepsEdgeSign(const CellReference& ref, int f, int k, bool positiv
   x[others[1]] = (e >> 1) & 1;
   constexpr int stride[3] = {1, 4, 16};
   // The reference along the edge is the cubic Hermite segment of its end data (values and slopes along it).
-  struct Weights {
-    double w[7][4];
-    Weights() {
-      for (int j = 0; j < 7; ++j) {
-        double dw[4];
-        hermiteWeights((j + 1) / 8.0, w[j], dw);
-      }
-    }
-  };
-  static const Weights weights;
+  const LatticeWeights<EdgeCheckAxis>& weights = LatticeWeights<EdgeCheckAxis>::get();
   double r[7];
   if (ref.field) {  // the 7 points as a lattice, which fields evaluate faster than point by point
     double along[7], fixed[2];
     const GridGeometry& g = *ref.geometry;
     for (int j = 0; j < 7; ++j)
-      along[j] = g.origin[axis] + g.spacing[axis] * (ref.origin[axis] + (j + 1) / 8.0);
+      along[j] = g.origin[axis] + g.spacing[axis] * (ref.origin[axis] + EdgeCheckAxis::coord(j));
     for (int i = 0; i < 2; ++i)
       fixed[i] = g.origin[others[i]] + g.spacing[others[i]] * (ref.origin[others[i]] + x[others[i]]);
     const double* coordinate[3];
@@ -883,7 +885,7 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t config, std::uint8_t p
   // No value meets the edges together with the lattice (the reference bulges towards an edge, or the corner
   // planes tilt across it): the lattice's stays, as without the edges, and the patch may cross the edge
   // there, a hole (docs/method.md, "Holes"). Failing the face instead makes the fallback rounds blend
-  // normals, which spread failures (Marschner-Lobb at N = 64: 1,452 blended isovertices against none).
+  // normals, which spread failures (docs/method.md, step 7).
   const SignedCoefficient both =
       solver.solve(fitted, {r.data(), cornerPart.data(), sideBasis.data(), count}, far, confirmFar);
   if (both.feasible) out.coefficient = both.value;
@@ -893,17 +895,6 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t config, std::uint8_t p
 /// Samples that openFaceSamples writes at most per face: the lattice, a point next to each lattice point of
 /// the border and the end of one search per edge.
 constexpr int kOpenFaceSamples = OpenFaceAxis::n * OpenFaceAxis::n + 4 * OpenFaceAxis::n + 4;
-
-/// Point (u, v) (face frame) of face f in cell-local coordinates.
-Vec3 facePoint(int f, double u, double v) {
-  const int axis = cube::faceAxis(f);
-  const auto uv = cube::otherAxes(axis);
-  Vec3 x;
-  x[axis] = cube::faceSide(f);
-  x[uv[0]] = u;
-  x[uv[1]] = v;
-  return x;
-}
 
 /// Sign samples of the central coefficient on face f of a cell, a face that is not a bounding plane, written
 /// as the fit's samples are: the sign of the face's corners (`positive`) as +1 or -1 in r, the patch without
@@ -983,13 +974,13 @@ struct CellResult {
   bool ok = true;
 };
 
-/// The central coefficient of a cell (configuration `config`). Where no value meets every counting sample,
+/// The central coefficient of a cell (configuration `config`). Where the open faces' samples cannot be met
+/// together with the lattice's, the open-face lattice points where the reference agrees with the corners
+/// take their place as reference samples (see the end). Where no value meets every counting sample then,
 /// the result is not ok and the coefficient is 0, or with `fallBackToLeastContradicted` the value the fewest
-/// counting samples contradict, those of the open faces first (see below; only for the cells still
-/// unresolved after the fallback rounds, as it examines more samples). Where the open faces' samples and
-/// the lattice's can each be met but not together, the result is ok and the coefficient is that value.
-/// Where only the second look (the staggered lattice) finds no value, the result is not ok and the
-/// coefficient is that of the cell's own lattice.
+/// counting samples contradict (see below; only for the cells still unresolved after the fallback rounds,
+/// as it examines more samples). Where only the second look (the staggered lattice) finds no value, the
+/// result is not ok and the coefficient is that of the cell's own lattice.
 CellResult fitCell(const CornerPatch& patch, std::uint8_t config, const CellReference& ref,
                    bool fallBackToLeastContradicted = false) {
   using Axis = CellAxis;
@@ -1035,7 +1026,7 @@ CellResult fitCell(const CornerPatch& patch, std::uint8_t config, const CellRefe
   std::array<std::array<int, 2>, 6 * OpenFaceAxis::n * OpenFaceAxis::n> faceOf;
   auto openPoint = [&](int i) {
     const auto [f, j] = faceOf[static_cast<std::size_t>(i - kLattice)];
-    return facePoint(f, OpenFaceAxis::coord(j % OpenFaceAxis::n), OpenFaceAxis::coord(j / OpenFaceAxis::n));
+    return faceLatticePoint<OpenFaceAxis>(f, j % OpenFaceAxis::n, j / OpenFaceAxis::n);
   };
   auto position = [&](int i) {
     if (i < kLattice) return lines.point(i);
