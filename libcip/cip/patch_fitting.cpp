@@ -8,6 +8,8 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <optional>
+#include <utility>
 #include <vector>
 
 #if defined(__x86_64__)
@@ -550,6 +552,55 @@ void patchFaceLattice(const LinearTerms& terms, int f, double* __restrict value,
     for (int a = 0; a < n; ++a) basis[a + n * b] = across * su[a] * sv[b];
 }
 
+/// valueWithoutCentral and centralBasis of a patch on face f at any point (u, v) of the face frame: each
+/// term is a linear function of (u, v) times squared face planes across u and across v (patterns mu, mv),
+/// so the terms of one pattern pair sum to one linear function. For the points off a lattice
+/// (openFaceSamples' ridge points and searches): a few flops per pattern pair instead of every term's planes.
+class FacePatch {
+ public:
+  FacePatch(const LinearTerms& terms, int f) {
+    const int axis = cube::faceAxis(f);
+    const double side = cube::faceSide(f);
+    const auto uv = cube::otherAxes(axis);
+    terms.forEach([&](double coefficient, const Vec3& normal, double offset, std::uint8_t mask) {
+      const double across = coefficient * squares(pattern(mask, axis), side);
+      if (across == 0) return;
+      const int pair = pattern(mask, uv[0]) + 4 * pattern(mask, uv[1]);
+      Linear& l = linear_[pair];
+      if (!((pairs_ >> pair) & 1)) {
+        pairs_ |= 1u << pair;
+        l = Linear{0, 0, 0};
+      }
+      l.u += across * normal[uv[0]];
+      l.v += across * normal[uv[1]];
+      l.constant += across * (normal[axis] * side + offset);
+    });
+    centralAcross_ = squares(pattern(terms.faceMask, axis), side);
+    centralPair_ = pattern(terms.faceMask, uv[0]) + 4 * pattern(terms.faceMask, uv[1]);
+  }
+  /// valueWithoutCentral (first) and centralBasis (second) at (u, v).
+  std::pair<double, double> at(double u, double v) const {
+    const double su[4] = {1, u * u, (1 - u) * (1 - u), u * u * (1 - u) * (1 - u)};
+    const double sv[4] = {1, v * v, (1 - v) * (1 - v), v * v * (1 - v) * (1 - v)};
+    double value = 0;
+    for (unsigned rest = pairs_; rest; rest &= rest - 1) {
+      const int pair = __builtin_ctz(rest);
+      const Linear& l = linear_[pair];
+      value += su[pair & 3] * sv[pair >> 2] * (l.u * u + l.v * v + l.constant);
+    }
+    return {value, centralAcross_ * su[centralPair_ & 3] * sv[centralPair_ >> 2]};
+  }
+
+ private:
+  struct Linear {  // no default values: an entry is cleared where its pair is first met
+    double u, v, constant;
+  };
+  std::array<Linear, 16> linear_;  ///< per pattern pair mu + 4 mv; valid for the pairs in pairs_
+  unsigned pairs_ = 0;
+  double centralAcross_ = 0;
+  int centralPair_ = 0;
+};
+
 /// Whether Newton steps on the reference from cell-local point x0 (reference value r0 != 0) reach its zero
 /// set within `radius` smallest voxels: a bound on the distance to the reference surface that, unlike the
 /// first-order estimate |r| / |grad r|, is not fooled by a large gradient far from the surface. The reference
@@ -909,12 +960,12 @@ constexpr int kOpenFaceSamples = OpenFaceAxis::n * OpenFaceAxis::n + 4 * OpenFac
 /// point of each edge a compass search follows the ridge (along the edge, and towards a corner where two
 /// such edges meet), and its end is one more sample. Returns the number of samples (at most
 /// kOpenFaceSamples).
-int openFaceSamples(const CornerPatch& patch, const LinearTerms& terms, int f, bool positive, double* r,
-                    double* a, double* b) {
+int openFaceSamples(const LinearTerms& terms, int f, bool positive, double* r, double* a, double* b) {
   using Axis = OpenFaceAxis;
   constexpr int n = Axis::n;
   const double sign = positive ? 1.0 : -1.0;
   patchFaceLattice<Axis>(terms, f, a, b);
+  std::optional<FacePatch> face;  // for the ridge points, made where the first is needed
   const double* av = a;  // the lattice's A and C, read by the ridge search before the edges are replaced
   const double* cv = b;
   int count = n * n;
@@ -939,8 +990,8 @@ int openFaceSamples(const CornerPatch& patch, const LinearTerms& terms, int f, b
       if (!(a0 > 0) || !(slope < 0) || !(-2 * a0 / slope < Axis::step)) continue;
       const double d = std::max(-2 * a0 / slope, kNearEdge);
       const Vec2 p = at(Axis::coord(i), d);
-      const Vec3 x = facePoint(f, p.x(), p.y());
-      const double aa = patch.valueWithoutCentral(x), cc = patch.centralBasis(x);
+      if (!face) face.emplace(terms, f);
+      const auto [aa, cc] = face->at(p.x(), p.y());
       add(aa, cc);
       if (cc > 0 && -sign * aa / cc > best)
         best = -sign * aa / cc, bu = p.x(), bv = p.y(), ba = aa, bc = cc, ridgeStep = d;
@@ -951,8 +1002,7 @@ int openFaceSamples(const CornerPatch& patch, const LinearTerms& terms, int f, b
       for (int dir = 0; dir < 4; ++dir) {
         const double uu = std::clamp(bu + (dir == 0 ? step : dir == 1 ? -step : 0.0), 0.0, 1.0);
         const double vv = std::clamp(bv + (dir == 2 ? step : dir == 3 ? -step : 0.0), 0.0, 1.0);
-        const Vec3 x = facePoint(f, uu, vv);
-        const double aa = patch.valueWithoutCentral(x), cc = patch.centralBasis(x);
+        const auto [aa, cc] = face->at(uu, vv);
         if (cc > 0 && -sign * aa / cc > best) {
           best = -sign * aa / cc, bu = uu, bv = vv, ba = aa, bc = cc;
           moved = true;
@@ -962,10 +1012,9 @@ int openFaceSamples(const CornerPatch& patch, const LinearTerms& terms, int f, b
     }
     add(ba, bc);
   }
-  for (int k = 0; k < n * n; ++k) {
-    r[k] = sign;
+  std::fill(r, r + n * n, sign);
+  for (int k = 0; k < n * n; ++k)
     if (!(b[k] > 0)) a[k] = sign;  // on an edge with a bounding plane: the side coefficients' (met here)
-  }
   return count;
 }
 
@@ -1009,8 +1058,8 @@ CellResult fitCell(const CornerPatch& patch, std::uint8_t config, const CellRefe
   for (int f = 0; f < 6; ++f)
     if (!((patch.faceMask >> f) & 1)) {
       open[static_cast<std::size_t>(numOpen++)] = {f, count};
-      count += openFaceSamples(patch, terms, f, (config >> cube::faceVertex(f, 0)) & 1, &r[count],
-                               &value[count], &basis[count]);
+      count += openFaceSamples(terms, f, (config >> cube::faceVertex(f, 0)) & 1, &r[count], &value[count],
+                               &basis[count]);
     }
   // The staggered lattice's patch lines and where its samples begin, while the second look below has them
   // (a pointer rather than an optional: the optional's storage, 2 KB, was zero-filled in every cell).
@@ -1134,11 +1183,10 @@ CellResult fitCell(const CornerPatch& patch, std::uint8_t config, const CellRefe
   // `used`: the samples the solver knows, from index 0; latticeOnly keeps it as it was after the lattice.
   SignedCoefficient sc = lattice;
   int used = kLattice;
-  bool openFails = false;
-  for (int i = kLattice; i < count && !openFails; ++i)
-    openFails =
-        CoefficientInterval::slack(r[static_cast<std::size_t>(i)] > 0, value[static_cast<std::size_t>(i)],
-                                   basis[static_cast<std::size_t>(i)], lattice.value) < 0;
+  std::array<std::uint64_t, (kOpen + 63) / 64> failing;
+  const bool openFails =
+      count > kLattice && slackSweep({&r[kLattice], &value[kLattice], &basis[kLattice], count - kLattice},
+                                     lattice.value, failing.data()) > 0;
   if (openFails) {
     latticeOnly = solver;
     sc = solver.solve(fitted, {r.data(), value.data(), basis.data(), count}, far, confirmFar);
