@@ -8,7 +8,6 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
-#include <optional>
 #include <utility>
 #include <vector>
 
@@ -558,7 +557,11 @@ void patchFaceLattice(const LinearTerms& terms, int f, double* __restrict value,
 /// (openFaceSamples' ridge points and searches): a few flops per pattern pair instead of every term's planes.
 class FacePatch {
  public:
-  FacePatch(const LinearTerms& terms, int f) {
+  /// Nothing set: set() makes it (a default-constructed member array is not zero-filled, unlike the storage
+  /// of an empty std::optional, which the compiler cleared per open face).
+  FacePatch() {}
+  void set(const LinearTerms& terms, int f) {
+    pairs_ = 0;
     const int axis = cube::faceAxis(f);
     const double side = cube::faceSide(f);
     const auto uv = cube::otherAxes(axis);
@@ -596,9 +599,9 @@ class FacePatch {
     double u, v, constant;
   };
   std::array<Linear, 16> linear_;  ///< per pattern pair mu + 4 mv; valid for the pairs in pairs_
-  unsigned pairs_ = 0;
-  double centralAcross_ = 0;
-  int centralPair_ = 0;
+  unsigned pairs_;
+  double centralAcross_;
+  int centralPair_;
 };
 
 /// Whether Newton steps on the reference from cell-local point x0 (reference value r0 != 0) reach its zero
@@ -965,7 +968,8 @@ int openFaceSamples(const LinearTerms& terms, int f, bool positive, double* r, d
   constexpr int n = Axis::n;
   const double sign = positive ? 1.0 : -1.0;
   patchFaceLattice<Axis>(terms, f, a, b);
-  std::optional<FacePatch> face;  // for the ridge points, made where the first is needed
+  FacePatch face;  // for the ridge points, set where the first is needed
+  bool faceSet = false;
   const double* av = a;  // the lattice's A and C, read by the ridge search before the edges are replaced
   const double* cv = b;
   int count = n * n;
@@ -973,16 +977,19 @@ int openFaceSamples(const LinearTerms& terms, int f, bool positive, double* r, d
     r[count] = sign, a[count] = aa, b[count] = cc;
     ++count;
   };
+  // The lattice index of point i along edge e (v = 0, v = 1, u = 0, u = 1), j rows in.
+  auto edgeIndex = [](int e, int i, int j) {
+    return e == 0 ? i + n * j : e == 1 ? i + n * (n - 1 - j) : e == 2 ? j + n * i : n - 1 - j + n * i;
+  };
+  unsigned planeEdges = 0;  // the edges with bounding planes
   for (int e = 0; e < 4; ++e) {
-    // Edge e: v = 0, v = 1, u = 0, u = 1; the face coordinates at position `along` on the edge and distance
-    // d from it, and the lattice index of point i along the edge, j rows in.
+    // The face coordinates at position `along` on edge e and distance d from it, and edgeIndex on it.
     auto at = [&](double along, double d) {
       return e < 2 ? Vec2(along, e == 0 ? d : 1 - d) : Vec2(e == 2 ? d : 1 - d, along);
     };
-    auto index = [&](int i, int j) {
-      return e == 0 ? i + n * j : e == 1 ? i + n * (n - 1 - j) : e == 2 ? j + n * i : n - 1 - j + n * i;
-    };
+    auto index = [&](int i, int j) { return edgeIndex(e, i, j); };
     if (cv[index(n / 2, 0)] > 0) continue;  // not an edge with a bounding plane
+    planeEdges |= 1u << e;
     // The edge's ridge point with the highest bound: face coordinates, A, C and distance from the edge.
     double bu = 0, bv = 0, ba = 0, bc = 0, best = -std::numeric_limits<double>::infinity(), ridgeStep = 0;
     for (int i = 2; i < n - 2; ++i) {
@@ -990,8 +997,8 @@ int openFaceSamples(const LinearTerms& terms, int f, bool positive, double* r, d
       if (!(a0 > 0) || !(slope < 0) || !(-2 * a0 / slope < Axis::step)) continue;
       const double d = std::max(-2 * a0 / slope, kNearEdge);
       const Vec2 p = at(Axis::coord(i), d);
-      if (!face) face.emplace(terms, f);
-      const auto [aa, cc] = face->at(p.x(), p.y());
+      if (!faceSet) face.set(terms, f), faceSet = true;
+      const auto [aa, cc] = face.at(p.x(), p.y());
       add(aa, cc);
       if (cc > 0 && -sign * aa / cc > best)
         best = -sign * aa / cc, bu = p.x(), bv = p.y(), ba = aa, bc = cc, ridgeStep = d;
@@ -1002,7 +1009,7 @@ int openFaceSamples(const LinearTerms& terms, int f, bool positive, double* r, d
       for (int dir = 0; dir < 4; ++dir) {
         const double uu = std::clamp(bu + (dir == 0 ? step : dir == 1 ? -step : 0.0), 0.0, 1.0);
         const double vv = std::clamp(bv + (dir == 2 ? step : dir == 3 ? -step : 0.0), 0.0, 1.0);
-        const auto [aa, cc] = face->at(uu, vv);
+        const auto [aa, cc] = face.at(uu, vv);
         if (cc > 0 && -sign * aa / cc > best) {
           best = -sign * aa / cc, bu = uu, bv = vv, ba = aa, bc = cc;
           moved = true;
@@ -1013,8 +1020,11 @@ int openFaceSamples(const LinearTerms& terms, int f, bool positive, double* r, d
     add(ba, bc);
   }
   std::fill(r, r + n * n, sign);
-  for (int k = 0; k < n * n; ++k)
-    if (!(b[k] > 0)) a[k] = sign;  // on an edge with a bounding plane: the side coefficients' (met here)
+  // On an edge with a bounding plane C = 0, and the side coefficients decide (uncrossedEdgeSamples): the
+  // samples there are written as met.
+  for (int e = 0; e < 4; ++e)
+    if ((planeEdges >> e) & 1)
+      for (int i = 0; i < n; ++i) a[edgeIndex(e, i, 0)] = sign;
   return count;
 }
 
