@@ -20,7 +20,8 @@
 /// keeps the reference's sign at interior lattice points away from the surface and, where that value fails
 /// them, the corners' sign on the cell's faces that are not bounding planes. Those edges and faces are
 /// continued by no neighbouring patch, so a wrong sign there would be a hole; where they cannot be met with
-/// the lattice, the lattice decides (docs/method.md, step 7). Samples (of faces and
+/// the lattice, the lattice decides (for a cell, after trying the open-face points where the reference agrees
+/// with the corners), and they never make a face or cell fail (docs/method.md, step 7). Samples (of faces and
 /// cells) the first-order distance estimate calls near the surface are checked by Newton steps on the
 /// reference where the patch gives them the wrong sign. When an interval is empty, the face or cell fails,
 /// and the normals of all its isovertices move one step from the gradient towards the edge direction (blend
