@@ -75,7 +75,7 @@ INSTANTIATE_TEST_SUITE_P(AnalyticFields, FittedPatches,
                            return std::get<0>(param.param) + "_" + toString(std::get<1>(param.param));
                          });
 
-// Marschner-Lobb at N = 32 has about 2.7 cells per ripple: 48 cells have sign structure inside that their
+// Marschner-Lobb at N = 32 has about 2.7 cells per ripple: 32 cells have sign structure inside that their
 // loops cannot follow, and blending their normals only spreads the failures (more unresolved cells after each
 // round). Near samples are confirmed near by a lattice neighbour of the other sign before Newton steps are
 // tried; with Newton steps alone, which miss some surfaces within reach in these ripples, 120 cells stayed
