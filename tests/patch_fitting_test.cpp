@@ -93,9 +93,11 @@ TEST(FittedPatches, FallbackRoundThatSpreadsFailuresIsUndone) {
   o.fittingStats = &stats;
   Model m = buildModel(g, o);
   EXPECT_TRUE(stats.lastRoundUndone);
-  EXPECT_LE(stats.rounds, 3);
+  // Open faces' samples never fail a cell (docs/method.md, step 7): when they could, 48 cells stayed
+  // unresolved and a fallback round was kept before the next one was undone.
+  EXPECT_LE(stats.rounds, 2);
   EXPECT_GT(stats.unresolvedCells.size(), 0u);
-  EXPECT_LT(stats.unresolvedCells.size(), 60u);
+  EXPECT_LT(stats.unresolvedCells.size(), 40u);
   EXPECT_EQ(countSpuriousCells(m, *field, 8, 0.5), 0);
   // The undone round restored the normals: the isovertices off the exact gradient are the ones the kept
   // rounds blended, no more.
