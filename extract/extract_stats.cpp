@@ -25,7 +25,9 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
     j["fitting"] = {{"rounds", s.fitting->rounds},
                     {"last_round_undone", s.fitting->lastRoundUndone},
                     {"blended_isovertices", s.fitting->blendedVertices},
-                    {"unresolved_cells", s.fitting->unresolvedCells.size()}};
+                    {"unresolved_cells", s.fitting->unresolvedCells.size()},
+                    {"edge_holes", s.fitting->holes},
+                    {"edge_holes_closed", s.fitting->holesClosed}};
     if (m.reconstruction) {
       j["fitting"]["reconstruction"] = toString(*m.reconstruction);
       if (s.fitting->sampling.cells > 0) {

@@ -45,6 +45,10 @@ TEST(ExtractCli, StatsReportTheFittedFallback) {
             std::string::npos)
       << text;
   EXPECT_NE(text.find("\"rounds\": " + std::to_string(expected.rounds)), std::string::npos) << text;
+  ASSERT_GT(expected.holes, 0u);
+  EXPECT_NE(text.find("\"edge_holes\": " + std::to_string(expected.holes)), std::string::npos) << text;
+  EXPECT_NE(text.find("\"edge_holes_closed\": " + std::to_string(expected.holesClosed)), std::string::npos)
+      << text;
   EXPECT_NE(text.find(std::string("\"last_round_undone\": ") + (expected.lastRoundUndone ? "true" : "false")),
             std::string::npos)
       << text;

@@ -769,9 +769,11 @@ bool referenceKeepsEdgeSign(const CellReference& ref, int f, int k, bool positiv
 /// itself and the restrictions of both faces times the squared distance from each next to it. Either way a
 /// restriction of the wrong sign on the edge puts the patch's zero set on a face that no neighbouring patch
 /// continues: a hole. Ends where D = 0 (next to a crossing, where the corner planes alone decide) are left
-/// out unless the corner planes give them the wrong sign (then no coefficient meets them). Returns the number
-/// of samples (at most kEdgePoints).
-int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* r, double* a, double* b) {
+/// out unless the corner planes give them the wrong sign (then no coefficient meets them); in their place a
+/// point where the bound of w peaks next to such an end may follow (below). The edge's points come first
+/// (`points` of them), then those ridge points. Returns the number of samples (at most kEdgePoints).
+int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* r, double* a, double* b,
+                         int& points) {
   // The edge's points (t = j / (kEdgePoints - 1)), and a point kNearEdge inside each end for the slope there.
   constexpr int m = kEdgePoints + 2, kStart = kEdgePoints, kEnd = kEdgePoints + 1;
   double t[m];
@@ -814,6 +816,8 @@ int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* 
     r[count] = sign, a[count] = cp, b[count] = sb;
     ++count;
   };
+  int ridges = 0;
+  double ridge[2][2];  // corner part and side basis of the ridge points, added after the edge's points
   for (int j = 0; j < kEdgePoints; ++j) {
     if (sideBasis[j] > 0 || sign * cornerPart[j] < 0) {
       add(cornerPart[j], sideBasis[j]);
@@ -827,8 +831,12 @@ int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* 
     if (!(r1 < 0) || !(-2 * r0 / r1 < 1.0 / (kEdgePoints - 1))) continue;
     const double d = std::max(-2 * r0 / r1, kNearEdge);
     const FaceRestriction fr = faceRestriction(fc, canonicalEdgePoint(k, j == 0 ? d : 1 - d));
-    add(fr.cornerPart, fr.sideBasis);
+    ridge[ridges][0] = fr.cornerPart;
+    ridge[ridges][1] = fr.sideBasis;
+    ++ridges;
   }
+  points = count;
+  for (int j = 0; j < ridges; ++j) add(ridge[j][0], ridge[j][1]);
   return count;
 }
 
@@ -841,6 +849,11 @@ struct FaceEntry {
 struct FaceResult {
   double coefficient = 0;
   bool ok = true;
+  /// The samples of an uncrossed edge that the reference keeps at the vertices' sign cannot be met together
+  /// with the lattice's, and with the lattice's coefficient the patch crosses the edge at one of the edge's
+  /// points (not only at a ridge point next to a crossing, a sliver): a hole, where no patch continues the
+  /// surface (see fitModelPatches).
+  bool hole = false;
 };
 
 /// The side coefficient of face f of a cell (its first cell) with corner data `patch` (coefficients unused),
@@ -923,17 +936,25 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t config, std::uint8_t p
   // uncrossedEdgeSamples). An edge whose samples the lattice's coefficient fails joins the samples (they
   // count always), unless the reference itself crosses it (referenceKeepsEdgeSign).
   int count = n * n;
+  bool pointFails = false;  // a joined edge's own points (not only a ridge point next to an end) fail
   for (int k = 0; k < 4; ++k) {
     if ((fc.crossed >> k) & 1) continue;
     const bool positive = (config >> cube::faceVertex(f, kEdgeStartVertex[k])) & 1;
+    int points = 0;
     const int added = uncrossedEdgeSamples(fc, k, positive, &r[static_cast<std::size_t>(count)],
                                            &cornerPart[static_cast<std::size_t>(count)],
-                                           &sideBasis[static_cast<std::size_t>(count)]);
-    bool fails = false;
-    for (int i = count; i < count + added; ++i)
-      fails |= CoefficientInterval::slack(positive, cornerPart[static_cast<std::size_t>(i)],
-                                          sideBasis[static_cast<std::size_t>(i)], alone.value) < 0;
-    if (fails && referenceKeepsEdgeSign(ref, f, k, positive)) count += added;
+                                           &sideBasis[static_cast<std::size_t>(count)], points);
+    bool fails = false, pointFailsHere = false;
+    for (int i = count; i < count + added; ++i) {
+      const bool wrong = CoefficientInterval::slack(positive, cornerPart[static_cast<std::size_t>(i)],
+                                                    sideBasis[static_cast<std::size_t>(i)], alone.value) < 0;
+      fails |= wrong;
+      pointFailsHere |= wrong && i < count + points;
+    }
+    if (fails && referenceKeepsEdgeSign(ref, f, k, positive)) {
+      count += added;
+      pointFails |= pointFailsHere;
+    }
   }
   if (count == n * n) return out;
   // No value meets the edges together with the lattice (the reference bulges towards an edge, or the corner
@@ -942,7 +963,10 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t config, std::uint8_t p
   // normals, which spread failures (docs/method.md, step 7).
   const SignedCoefficient both =
       solver.solve(fitted, {r.data(), cornerPart.data(), sideBasis.data(), count}, far, confirmFar);
-  if (both.feasible) out.coefficient = both.value;
+  if (both.feasible)
+    out.coefficient = both.value;
+  else
+    out.hole = pointFails;
   return out;
 }
 
@@ -1337,6 +1361,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   std::vector<std::uint8_t> level(numVertices, 0), bump(numVertices, 0);
   std::vector<std::uint8_t> faceDirty(faces.size(), 1), cellDirty(numCells, 1);
   std::vector<std::uint8_t> faceOk(faces.size(), 1), cellOk(numCells, 1);
+  std::vector<std::uint8_t> faceHole(faces.size(), 0);  // FaceResult::hole
   std::vector<double> faceCoefficient(faces.size(), 0.0);
   auto cellVertex = [&](std::size_t c, int k) { return model.corners[model.cells[c].firstCorner + k]; };
   const std::vector<std::uint8_t>& ownedFaces = table.ownedFaces;
@@ -1399,8 +1424,19 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     std::array<double, 6> faceCoefficient;
     std::uint8_t ok;
   };
+  struct SavedFace {
+    std::size_t index;
+    double coefficient;
+    std::uint8_t ok, hole;
+  };
   std::vector<SavedCell> savedCells;
-  std::vector<std::pair<std::size_t, std::uint8_t>> savedFaces;
+  std::vector<SavedFace> savedFaces;
+  auto setNormal = [&](std::size_t v) {
+    double beta = kBlend[level[v]];
+    const Vec3 edge = edgeDirection(v);
+    Vec3 n = (1 - beta) * baseNormal[v] + beta * edge;
+    model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edge;
+  };
   for (int round = 0;; ++round) {
     stats.rounds = round + 1;
     if (round > 0) {
@@ -1411,16 +1447,10 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
         for (int f = 0; f < 6; ++f)
           if (ownedDirtyFace(c, f)) {
             const auto i = static_cast<std::size_t>(cellFaces[c][f]);
-            savedFaces.emplace_back(i, faceOk[i]);
+            savedFaces.push_back({i, faceCoefficient[i], faceOk[i], faceHole[i]});
           }
       }
     }
-    auto setNormal = [&](std::size_t v) {
-      double beta = kBlend[level[v]];
-      const Vec3 edge = edgeDirection(v);
-      Vec3 n = (1 - beta) * baseNormal[v] + beta * edge;
-      model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edge;
-    };
     if (round == 0)
       tbb::parallel_for(std::size_t(0), numVertices, setNormal);
     else
@@ -1446,6 +1476,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                 const FaceResult fr = fitFace(patch, model.cells[c].config, model.cells[c].pairing03, f, ref);
                 faceCoefficient[i] = fr.coefficient;
                 faceOk[i] = fr.ok;
+                faceHole[i] = fr.hole;
               }
             }
           });
@@ -1482,7 +1513,11 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
         cell.faceCoefficient = savedCells[j].faceCoefficient;
         cellOk[dirtyCells[j]] = savedCells[j].ok;
       }
-      for (const auto& [i, ok] : savedFaces) faceOk[i] = ok;
+      for (const SavedFace& saved : savedFaces) {
+        faceCoefficient[saved.index] = saved.coefficient;
+        faceOk[saved.index] = saved.ok;
+        faceHole[saved.index] = saved.hole;
+      }
       for (std::uint32_t v : changedVertices) {
         --level[v];
         setNormal(v);
@@ -1570,6 +1605,128 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
           }
       }
     std::sort(dirtyCells.begin(), dirtyCells.end());
+  }
+  // Holes the rounds leave: faces whose uncrossed edges their side coefficient cannot keep at the vertices'
+  // sign together with the face lattice, where the reference keeps that sign (FaceResult::hole). The corner
+  // planes of the face's isovertices stand in the way, so they move towards the edge direction one level at
+  // a time, here alone: the faces and cells around them are fitted again, and the blend is kept at the first
+  // level where the hole closes and no face or cell around it fails or gets a hole it did not have;
+  // otherwise it is undone. As failures, holes would spread to the neighbours through the rounds
+  // (docs/method.md, step 7). One hole at a time, in index order, so the model does not depend on the number
+  // of threads.
+  std::vector<std::uint32_t> holes;
+  for (std::size_t i = 0; i < faces.size(); ++i)
+    if (faceHole[i] && faceOk[i]) holes.push_back(static_cast<std::uint32_t>(i));
+  stats.holes = holes.size();
+  if (!holes.empty()) {
+    // The cells of each isovertex (at most 4), as offsets into one array.
+    std::vector<std::uint32_t> cellsOfVertex, firstCellOf(numVertices + 1, 0);
+    for (std::size_t c = 0; c < numCells; ++c)
+      for (int k = 0; k < model.cells[c].numCorners(); ++k) ++firstCellOf[cellVertex(c, k) + 1];
+    std::partial_sum(firstCellOf.begin(), firstCellOf.end(), firstCellOf.begin());
+    cellsOfVertex.resize(firstCellOf[numVertices]);
+    {
+      std::vector<std::uint32_t> next(firstCellOf.begin(), firstCellOf.end() - 1);
+      for (std::size_t c = 0; c < numCells; ++c)
+        for (int k = 0; k < model.cells[c].numCorners(); ++k)
+          cellsOfVertex[next[cellVertex(c, k)]++] = static_cast<std::uint32_t>(c);
+    }
+    std::vector<std::uint32_t> vertices, regionCells, regionFaces;
+    CellReference ref;
+    for (std::uint32_t target : holes) {
+      if (!faceHole[target]) continue;  // closed by an earlier blend
+      // The isovertices on the face's edges, from the face's first cell.
+      const std::size_t owner = faces[target].cell[0];
+      std::uint16_t edgeMask = 0;
+      for (int k = 0; k < 4; ++k)
+        edgeMask = static_cast<std::uint16_t>(edgeMask | (1u << cube::faceEdge(faces[target].face[0], k)));
+      vertices.clear();
+      for (int k = 0; k < model.cells[owner].numCorners(); ++k)
+        if ((edgeMask >> loops[owner].edges[k]) & 1) vertices.push_back(cellVertex(owner, k));
+      // The faces of the cells around them and all those faces' cells, as a round would fit them.
+      regionCells.clear();
+      regionFaces.clear();
+      for (std::uint32_t v : vertices)
+        for (std::uint32_t j = firstCellOf[v]; j < firstCellOf[v + 1]; ++j)
+          for (int f = 0; f < 6; ++f)
+            if (cellFaces[cellsOfVertex[j]][f] >= 0)
+              regionFaces.push_back(static_cast<std::uint32_t>(cellFaces[cellsOfVertex[j]][f]));
+      std::sort(regionFaces.begin(), regionFaces.end());
+      regionFaces.erase(std::unique(regionFaces.begin(), regionFaces.end()), regionFaces.end());
+      for (std::uint32_t i : regionFaces)
+        for (int s = 0; s < faces[i].count; ++s) regionCells.push_back(faces[i].cell[s]);
+      std::sort(regionCells.begin(), regionCells.end());
+      regionCells.erase(std::unique(regionCells.begin(), regionCells.end()), regionCells.end());
+      savedFaces.clear();
+      savedCells.clear();
+      for (std::uint32_t i : regionFaces)
+        savedFaces.push_back({i, faceCoefficient[i], faceOk[i], faceHole[i]});
+      for (std::uint32_t c : regionCells)
+        savedCells.push_back({model.cells[c].central, model.cells[c].faceCoefficient, cellOk[c]});
+      const std::vector<std::uint8_t> startLevel = [&] {
+        std::vector<std::uint8_t> l;
+        for (std::uint32_t v : vertices) l.push_back(level[v]);
+        return l;
+      }();
+      bool closed = false;
+      for (;;) {
+        bool moved = false;
+        for (std::uint32_t v : vertices)
+          if (level[v] < kMaxLevel) {
+            ++level[v];
+            setNormal(v);
+            moved = true;
+          }
+        if (!moved) break;
+        for (std::uint32_t i : regionFaces) {
+          const std::size_t c = faces[i].cell[0];
+          reference(c, ref);
+          const FaceResult fr = fitFace(model.patch(c, loops[c]), model.cells[c].config,
+                                        model.cells[c].pairing03, faces[i].face[0], ref);
+          faceCoefficient[i] = fr.coefficient;
+          faceOk[i] = fr.ok;
+          faceHole[i] = fr.hole;
+          for (int s = 0; s < faces[i].count; ++s)
+            model.cells[faces[i].cell[s]].faceCoefficient[faces[i].face[s]] = fr.coefficient;
+        }
+        for (std::uint32_t c : regionCells) {
+          reference(c, ref);
+          model.cells[c].central = 0;
+          const CellResult cr = fitCell(model.patch(c, loops[c]), model.cells[c].config, ref);
+          model.cells[c].central = cr.central;
+          cellOk[c] = cr.ok;
+        }
+        bool worse = false;
+        for (const SavedFace& saved : savedFaces)
+          worse |= (saved.ok && !faceOk[saved.index]) || (!saved.hole && faceHole[saved.index]);
+        for (std::size_t j = 0; j < regionCells.size(); ++j)
+          worse |= savedCells[j].ok && !cellOk[regionCells[j]];
+        if (worse) break;
+        if (!faceHole[target]) {
+          closed = true;
+          break;
+        }
+      }
+      if (closed) {
+        ++stats.holesClosed;
+        continue;
+      }
+      for (std::size_t j = 0; j < vertices.size(); ++j) {
+        level[vertices[j]] = startLevel[j];
+        setNormal(vertices[j]);
+      }
+      for (const SavedFace& saved : savedFaces) {
+        faceCoefficient[saved.index] = saved.coefficient;
+        faceOk[saved.index] = saved.ok;
+        faceHole[saved.index] = saved.hole;
+      }
+      for (std::size_t j = 0; j < regionCells.size(); ++j) {
+        ModelCell& cell = model.cells[regionCells[j]];
+        cell.central = savedCells[j].central;
+        cell.faceCoefficient = savedCells[j].faceCoefficient;
+        cellOk[regionCells[j]] = savedCells[j].ok;
+      }
+    }
   }
   // Faces left without a sign-correct side coefficient take the one the fewest counting samples contradict
   // (nearest to the fit) instead of the fit, and their cells' central coefficients are fitted again. Then

@@ -53,6 +53,9 @@ struct FittingStats {
   /// Cells (model indices, ascending) that end without a sign-correct central coefficient or touch a face
   /// that ends without a sign-correct side coefficient: where the checks could not be met.
   std::vector<std::uint32_t> unresolvedCells;
+  /// Faces and cells whose coefficients could not keep the corners' sign on their uncrossed edges or open
+  /// faces after the rounds (a possible hole), and how many of them a local blend of their normals closed.
+  std::size_t holes = 0, holesClosed = 0;
   /// Set by buildModel unless normals are exact: the reconstruction of the reference (Reconstruction::Auto
   /// resolved) and, for Auto, the estimate it was resolved from (reconstruction_choice.h).
   Reconstruction reconstruction = Reconstruction::Monotone;
