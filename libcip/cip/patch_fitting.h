@@ -21,7 +21,9 @@
 /// them, the corners' sign on the cell's faces that are not bounding planes. Those edges and faces are
 /// continued by no neighbouring patch, so a wrong sign there would be a hole; where they cannot be met with
 /// the lattice, the lattice decides (for a cell, after trying the open-face points where the reference agrees
-/// with the corners), and they never make a face or cell fail (docs/method.md, step 7). Samples (of faces and
+/// with the corners), and they never make a face or cell fail (docs/method.md, step 7); after the rounds,
+/// a face whose uncrossed edges stay crossed that way has the normals of its isovertices blended alone, kept
+/// only where that closes the hole and no face or cell around it fails or gets one. Samples (of faces and
 /// cells) the first-order distance estimate calls near the surface are checked by Newton steps on the
 /// reference where the patch gives them the wrong sign. When an interval is empty, the face or cell fails,
 /// and the normals of all its isovertices move one step from the gradient towards the edge direction (blend
