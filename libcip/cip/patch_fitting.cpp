@@ -770,10 +770,10 @@ bool referenceKeepsEdgeSign(const CellReference& ref, int f, int k, bool positiv
 /// restriction of the wrong sign on the edge puts the patch's zero set on a face that no neighbouring patch
 /// continues: a hole. Ends where D = 0 (next to a crossing, where the corner planes alone decide) are left
 /// out unless the corner planes give them the wrong sign (then no coefficient meets them); in their place a
-/// point where the bound of w peaks next to such an end may follow (below). The edge's points come first
-/// (`points` of them), then those ridge points. Returns the number of samples (at most kEdgePoints).
-int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* r, double* a, double* b,
-                         int& points) {
+/// point where the bound of w peaks next to such an end may follow (below). The kEdgePoints - 2 points inside
+/// the edge come first, then the ends (or their ridge points). Returns the number of samples (at most
+/// kEdgePoints).
+int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* r, double* a, double* b) {
   // The edge's points (t = j / (kEdgePoints - 1)), and a point kNearEdge inside each end for the slope there.
   constexpr int m = kEdgePoints + 2, kStart = kEdgePoints, kEnd = kEdgePoints + 1;
   double t[m];
@@ -816,9 +816,8 @@ int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* 
     r[count] = sign, a[count] = cp, b[count] = sb;
     ++count;
   };
-  int ridges = 0;
-  double ridge[2][2];  // corner part and side basis of the ridge points, added after the edge's points
-  for (int j = 0; j < kEdgePoints; ++j) {
+  for (int j = 1; j < kEdgePoints - 1; ++j) add(cornerPart[j], sideBasis[j]);  // D > 0 inside
+  for (int j : {0, kEdgePoints - 1}) {
     if (sideBasis[j] > 0 || sign * cornerPart[j] < 0) {
       add(cornerPart[j], sideBasis[j]);
       continue;
@@ -831,12 +830,8 @@ int uncrossedEdgeSamples(const FaceCrossings& fc, int k, bool positive, double* 
     if (!(r1 < 0) || !(-2 * r0 / r1 < 1.0 / (kEdgePoints - 1))) continue;
     const double d = std::max(-2 * r0 / r1, kNearEdge);
     const FaceRestriction fr = faceRestriction(fc, canonicalEdgePoint(k, j == 0 ? d : 1 - d));
-    ridge[ridges][0] = fr.cornerPart;
-    ridge[ridges][1] = fr.sideBasis;
-    ++ridges;
+    add(fr.cornerPart, fr.sideBasis);
   }
-  points = count;
-  for (int j = 0; j < ridges; ++j) add(ridge[j][0], ridge[j][1]);
   return count;
 }
 
@@ -849,11 +844,12 @@ struct FaceEntry {
 struct FaceResult {
   double coefficient = 0;
   bool ok = true;
-  /// The samples of an uncrossed edge that the reference keeps at the vertices' sign cannot be met together
-  /// with the lattice's, and with the lattice's coefficient the patch crosses the edge at one of the edge's
-  /// points (not only at a ridge point next to a crossing, a sliver): a hole, where no patch continues the
-  /// surface (see fitModelPatches).
-  bool hole = false;
+  /// Canonical edges (bit k) without a crossing that the reference keeps at the vertices' sign, where the
+  /// edge's samples cannot be met together with the lattice's and, with the lattice's coefficient, the face
+  /// restriction has the other sign at one of the edge's points inside (not only at an end or at a ridge
+  /// point next to a crossing). Where such an edge lies on a face that is open in one of the face's cells,
+  /// the patch's zero set ends there: a hole (see fitModelPatches).
+  std::uint8_t holeEdges = 0;
 };
 
 /// The side coefficient of face f of a cell (its first cell) with corner data `patch` (coefficients unused),
@@ -936,24 +932,25 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t config, std::uint8_t p
   // uncrossedEdgeSamples). An edge whose samples the lattice's coefficient fails joins the samples (they
   // count always), unless the reference itself crosses it (referenceKeepsEdgeSign).
   int count = n * n;
-  bool pointFails = false;  // a joined edge's own points (not only a ridge point next to an end) fail
+  // Joined edges with the wrong sign inside (not only at an end, where an isovertex on a grid point makes the
+  // restriction 0 up to rounding, or at a ridge point next to a crossing, a sliver).
+  std::uint8_t pointFails = 0;
   for (int k = 0; k < 4; ++k) {
     if ((fc.crossed >> k) & 1) continue;
     const bool positive = (config >> cube::faceVertex(f, kEdgeStartVertex[k])) & 1;
-    int points = 0;
     const int added = uncrossedEdgeSamples(fc, k, positive, &r[static_cast<std::size_t>(count)],
                                            &cornerPart[static_cast<std::size_t>(count)],
-                                           &sideBasis[static_cast<std::size_t>(count)], points);
+                                           &sideBasis[static_cast<std::size_t>(count)]);
     bool fails = false, pointFailsHere = false;
     for (int i = count; i < count + added; ++i) {
-      const bool wrong = CoefficientInterval::slack(positive, cornerPart[static_cast<std::size_t>(i)],
-                                                    sideBasis[static_cast<std::size_t>(i)], alone.value) < 0;
-      fails |= wrong;
-      pointFailsHere |= wrong && i < count + points;
+      const double a = cornerPart[static_cast<std::size_t>(i)], b = sideBasis[static_cast<std::size_t>(i)];
+      fails |= CoefficientInterval::slack(positive, a, b, alone.value) < 0;  // with the clamp's margin
+      const double v = a + alone.value * b;
+      pointFailsHere |= i < count + kEdgePoints - 2 && (positive ? v < 0 : v > 0);
     }
     if (fails && referenceKeepsEdgeSign(ref, f, k, positive)) {
       count += added;
-      pointFails |= pointFailsHere;
+      pointFails = static_cast<std::uint8_t>(pointFails | (unsigned{pointFailsHere} << k));
     }
   }
   if (count == n * n) return out;
@@ -966,7 +963,7 @@ FaceResult fitFace(const CornerPatch& patch, std::uint8_t config, std::uint8_t p
   if (both.feasible)
     out.coefficient = both.value;
   else
-    out.hole = pointFails;
+    out.holeEdges = pointFails;
   return out;
 }
 
@@ -1361,7 +1358,21 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
   std::vector<std::uint8_t> level(numVertices, 0), bump(numVertices, 0);
   std::vector<std::uint8_t> faceDirty(faces.size(), 1), cellDirty(numCells, 1);
   std::vector<std::uint8_t> faceOk(faces.size(), 1), cellOk(numCells, 1);
-  std::vector<std::uint8_t> faceHole(faces.size(), 0);  // FaceResult::hole
+  // Per face, whether FaceResult::holeEdges has an edge on a face that is open in one of its cells (a cell
+  // face without a crossing, which no patch continues): there the patch's zero set ends, a hole. Where both
+  // cells have a bounding plane through the edge instead, their zero sets meet along it (a crease).
+  std::vector<std::uint8_t> faceHole(faces.size(), 0);
+  auto opensAHole = [&](std::size_t i, std::uint8_t holeEdges) {
+    const FaceEntry& face = faces[i];
+    for (int k = 0; k < 4; ++k) {
+      if (!((holeEdges >> k) & 1)) continue;
+      const auto both = cube::edgeFaces(cube::faceEdge(face.face[0], k));
+      const int other = both[0] == face.face[0] ? both[1] : both[0];  // the same plane in both cells
+      for (int s = 0; s < face.count; ++s)
+        if (!((loops[face.cell[s]].faceMask >> other) & 1)) return true;
+    }
+    return false;
+  };
   std::vector<double> faceCoefficient(faces.size(), 0.0);
   auto cellVertex = [&](std::size_t c, int k) { return model.corners[model.cells[c].firstCorner + k]; };
   const std::vector<std::uint8_t>& ownedFaces = table.ownedFaces;
@@ -1476,7 +1487,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                 const FaceResult fr = fitFace(patch, model.cells[c].config, model.cells[c].pairing03, f, ref);
                 faceCoefficient[i] = fr.coefficient;
                 faceOk[i] = fr.ok;
-                faceHole[i] = fr.hole;
+                faceHole[i] = opensAHole(i, fr.holeEdges);
               }
             }
           });
@@ -1607,13 +1618,13 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     std::sort(dirtyCells.begin(), dirtyCells.end());
   }
   // Holes the rounds leave: faces whose uncrossed edges their side coefficient cannot keep at the vertices'
-  // sign together with the face lattice, where the reference keeps that sign (FaceResult::hole). The corner
-  // planes of the face's isovertices stand in the way, so they move towards the edge direction one level at
-  // a time, here alone: the faces and cells around them are fitted again, and the blend is kept at the first
-  // level where the hole closes and no face or cell around it fails or gets a hole it did not have;
-  // otherwise it is undone. As failures, holes would spread to the neighbours through the rounds
-  // (docs/method.md, step 7). One hole at a time, in index order, so the model does not depend on the number
-  // of threads.
+  // sign together with the face lattice, where the reference keeps that sign, next to an open face
+  // (faceHole). The corner planes of the face's isovertices stand in the way, so they move towards the edge
+  // direction one level at a time, here alone: the faces and cells around them are fitted again, and the
+  // blend is kept at the first level where the hole closes and no face or cell around it fails or gets a hole
+  // it did not have; otherwise it is undone. As failures, holes would spread to the neighbours through the
+  // rounds (docs/method.md, step 7). One hole at a time, in index order, so the model does not depend on the
+  // number of threads.
   std::vector<std::uint32_t> holes;
   for (std::size_t i = 0; i < faces.size(); ++i)
     if (faceHole[i] && faceOk[i]) holes.push_back(static_cast<std::uint32_t>(i));
@@ -1685,7 +1696,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                                         model.cells[c].pairing03, faces[i].face[0], ref);
           faceCoefficient[i] = fr.coefficient;
           faceOk[i] = fr.ok;
-          faceHole[i] = fr.hole;
+          faceHole[i] = opensAHole(i, fr.holeEdges);
           for (int s = 0; s < faces[i].count; ++s)
             model.cells[faces[i].cell[s]].faceCoefficient[faces[i].face[s]] = fr.coefficient;
         }
