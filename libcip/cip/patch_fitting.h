@@ -22,16 +22,16 @@
 /// continued by no neighbouring patch, so a wrong sign there would be a hole; where they cannot be met with
 /// the lattice, the lattice decides (for a cell, after trying the open-face points where the reference agrees
 /// with the corners), and they never make a face or cell fail (docs/method.md, step 7); after the rounds,
-/// a face whose uncrossed edges stay crossed that way has the normals of its isovertices blended alone, kept
-/// only where that closes the hole and no face or cell around it fails or gets one. Samples (of faces and
-/// cells) the first-order distance estimate calls near the surface are checked by Newton steps on the
-/// reference where the patch gives them the wrong sign. When an interval is empty, the face or cell fails,
-/// and the normals of all its isovertices move one step from the gradient towards the edge direction (blend
-/// levels, shared per isovertex); the affected faces and cells are recomputed. A round that does not reduce
-/// the cells left unresolved is undone and ends the rounds (blending cannot fix a cell whose field has
-/// structure inside that its loops do not follow, and there it spreads failures). A cell left without a
-/// sign-correct central coefficient takes the one the fewest counting samples contradict. Rounds are
-/// deterministic (decisions of a round depend only on the previous round's state), so the result does not
+/// a face whose uncrossed edge next to an open face stays crossed that way has the normals of its isovertices
+/// blended alone, kept only where that closes the hole and no face or cell around it fails or gets one.
+/// Samples (of faces and cells) the first-order distance estimate calls near the surface are checked by
+/// Newton steps on the reference where the patch gives them the wrong sign. When an interval is empty, the
+/// face or cell fails, and the normals of all its isovertices move one step from the gradient towards the
+/// edge direction (blend levels, shared per isovertex); the affected faces and cells are recomputed. A round
+/// that does not reduce the cells left unresolved is undone and ends the rounds (blending cannot fix a cell
+/// whose field has structure inside that its loops do not follow, and there it spreads failures). A cell left
+/// without a sign-correct central coefficient takes the one the fewest counting samples contradict. Rounds
+/// are deterministic (decisions of a round depend only on the previous round's state), so the result does not
 /// depend on the number of threads. docs/method.md has the details and the measurements.
 #pragma once
 #include <array>
@@ -55,8 +55,8 @@ struct FittingStats {
   /// Cells (model indices, ascending) that end without a sign-correct central coefficient or touch a face
   /// that ends without a sign-correct side coefficient: where the checks could not be met.
   std::vector<std::uint32_t> unresolvedCells;
-  /// Faces and cells whose coefficients could not keep the corners' sign on their uncrossed edges or open
-  /// faces after the rounds (a possible hole), and how many of them a local blend of their normals closed.
+  /// Faces left by the rounds whose side coefficient cannot keep an uncrossed edge next to an open face at
+  /// its vertices' sign (a hole), and how many of them a local blend of their isovertices' normals closed.
   std::size_t holes = 0, holesClosed = 0;
   /// Set by buildModel unless normals are exact: the reconstruction of the reference (Reconstruction::Auto
   /// resolved) and, for Auto, the estimate it was resolved from (reconstruction_choice.h).
