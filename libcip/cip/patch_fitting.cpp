@@ -1448,6 +1448,38 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     Vec3 n = (1 - beta) * baseNormal[v] + beta * edge;
     model.vertices[v].normal = n.norm() > 1e-12 ? Vec3(n.normalized()) : edge;
   };
+  // A face's fit recorded (by its first cell), then copied to both its cells; a cell's central coefficient
+  // fitted with the side coefficients it has. The rounds and the local blends below fit alike.
+  auto recordFace = [&](std::size_t i, const FaceResult& fr) {
+    faceCoefficient[i] = fr.coefficient;
+    faceOk[i] = fr.ok;
+    faceHole[i] = opensAHole(i, fr.holeEdges);
+  };
+  auto shareFace = [&](std::size_t i) {
+    const FaceEntry& face = faces[i];
+    for (int s = 0; s < face.count; ++s)
+      model.cells[face.cell[s]].faceCoefficient[face.face[s]] = faceCoefficient[i];
+  };
+  auto refitCell = [&](std::size_t c, const CellReference& ref) {
+    model.cells[c].central = 0;
+    const CellResult cr = fitCell(model.patch(c, loops[c]), model.cells[c].config, ref);
+    model.cells[c].central = cr.central;
+    cellOk[c] = cr.ok;
+  };
+  // Puts back what savedFaces and savedCells (one per cell of `cells`) hold.
+  auto restoreSaved = [&](const std::vector<std::uint32_t>& cells) {
+    for (std::size_t j = 0; j < cells.size(); ++j) {
+      ModelCell& cell = model.cells[cells[j]];
+      cell.central = savedCells[j].central;
+      cell.faceCoefficient = savedCells[j].faceCoefficient;
+      cellOk[cells[j]] = savedCells[j].ok;
+    }
+    for (const SavedFace& saved : savedFaces) {
+      faceCoefficient[saved.index] = saved.coefficient;
+      faceOk[saved.index] = saved.ok;
+      faceHole[saved.index] = saved.hole;
+    }
+  };
   for (int round = 0;; ++round) {
     stats.rounds = round + 1;
     if (round > 0) {
@@ -1484,33 +1516,20 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
               for (int f = 0; f < 6; ++f) {
                 if (!((fits >> f) & 1)) continue;
                 const auto i = static_cast<std::size_t>(cellFaces[c][f]);
-                const FaceResult fr = fitFace(patch, model.cells[c].config, model.cells[c].pairing03, f, ref);
-                faceCoefficient[i] = fr.coefficient;
-                faceOk[i] = fr.ok;
-                faceHole[i] = opensAHole(i, fr.holeEdges);
+                recordFace(i, fitFace(patch, model.cells[c].config, model.cells[c].pairing03, f, ref));
               }
             }
           });
       for (std::size_t j = b0; j < b1; ++j)
         for (int f = 0; f < 6; ++f) {
           const std::size_t c = dirtyCells[j];
-          if (!ownedDirtyFace(c, f)) continue;
-          const FaceEntry& face = faces[static_cast<std::size_t>(cellFaces[c][f])];
-          for (int s = 0; s < face.count; ++s)
-            model.cells[face.cell[s]].faceCoefficient[face.face[s]] =
-                faceCoefficient[static_cast<std::size_t>(cellFaces[c][f])];
+          if (ownedDirtyFace(c, f)) shareFace(static_cast<std::size_t>(cellFaces[c][f]));
         }
-      tbb::parallel_for(
-          tbb::blocked_range<std::size_t>(b0, b1, 32), [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t j = r.begin(); j != r.end(); ++j) {
-              const std::size_t c = dirtyCells[j];
-              model.cells[c].central = 0;
-              const CellResult cr =
-                  fitCell(model.patch(c, loops[c]), model.cells[c].config, blockReference[j - b0]);
-              model.cells[c].central = cr.central;
-              cellOk[c] = cr.ok;
-            }
-          });
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(b0, b1, 32),
+                        [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t j = r.begin(); j != r.end(); ++j)
+                            refitCell(dirtyCells[j], blockReference[j - b0]);
+                        });
     }
     // A fallback round that does not reduce the unresolved cells is undone, and the rounds end: blending
     // normals cannot make a cell follow sign structure its loops do not have (a field with detail inside
@@ -1518,17 +1537,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
     // unresolved cells after the first round, 280 after ten).
     const std::size_t unresolved = unresolvedCells().size();
     if (round > 0 && unresolved >= bestUnresolved) {
-      for (std::size_t j = 0; j < dirtyCells.size(); ++j) {
-        ModelCell& cell = model.cells[dirtyCells[j]];
-        cell.central = savedCells[j].central;
-        cell.faceCoefficient = savedCells[j].faceCoefficient;
-        cellOk[dirtyCells[j]] = savedCells[j].ok;
-      }
-      for (const SavedFace& saved : savedFaces) {
-        faceCoefficient[saved.index] = saved.coefficient;
-        faceOk[saved.index] = saved.ok;
-        faceHole[saved.index] = saved.hole;
-      }
+      restoreSaved(dirtyCells);
       for (std::uint32_t v : changedVertices) {
         --level[v];
         setNormal(v);
@@ -1643,6 +1652,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
           cellsOfVertex[next[cellVertex(c, k)]++] = static_cast<std::uint32_t>(c);
     }
     std::vector<std::uint32_t> vertices, regionCells, regionFaces;
+    std::vector<std::uint8_t> startLevel;  // of `vertices`
     CellReference ref;
     for (std::uint32_t target : holes) {
       if (!faceHole[target]) continue;  // closed by an earlier blend
@@ -1674,11 +1684,8 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
         savedFaces.push_back({i, faceCoefficient[i], faceOk[i], faceHole[i]});
       for (std::uint32_t c : regionCells)
         savedCells.push_back({model.cells[c].central, model.cells[c].faceCoefficient, cellOk[c]});
-      const std::vector<std::uint8_t> startLevel = [&] {
-        std::vector<std::uint8_t> l;
-        for (std::uint32_t v : vertices) l.push_back(level[v]);
-        return l;
-      }();
+      startLevel.clear();
+      for (std::uint32_t v : vertices) startLevel.push_back(level[v]);
       bool closed = false;
       for (;;) {
         bool moved = false;
@@ -1692,20 +1699,13 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
         for (std::uint32_t i : regionFaces) {
           const std::size_t c = faces[i].cell[0];
           reference(c, ref);
-          const FaceResult fr = fitFace(model.patch(c, loops[c]), model.cells[c].config,
-                                        model.cells[c].pairing03, faces[i].face[0], ref);
-          faceCoefficient[i] = fr.coefficient;
-          faceOk[i] = fr.ok;
-          faceHole[i] = opensAHole(i, fr.holeEdges);
-          for (int s = 0; s < faces[i].count; ++s)
-            model.cells[faces[i].cell[s]].faceCoefficient[faces[i].face[s]] = fr.coefficient;
+          recordFace(i, fitFace(model.patch(c, loops[c]), model.cells[c].config, model.cells[c].pairing03,
+                                faces[i].face[0], ref));
+          shareFace(i);
         }
         for (std::uint32_t c : regionCells) {
           reference(c, ref);
-          model.cells[c].central = 0;
-          const CellResult cr = fitCell(model.patch(c, loops[c]), model.cells[c].config, ref);
-          model.cells[c].central = cr.central;
-          cellOk[c] = cr.ok;
+          refitCell(c, ref);
         }
         bool worse = false;
         for (const SavedFace& saved : savedFaces)
@@ -1726,17 +1726,7 @@ FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
         level[vertices[j]] = startLevel[j];
         setNormal(vertices[j]);
       }
-      for (const SavedFace& saved : savedFaces) {
-        faceCoefficient[saved.index] = saved.coefficient;
-        faceOk[saved.index] = saved.ok;
-        faceHole[saved.index] = saved.hole;
-      }
-      for (std::size_t j = 0; j < regionCells.size(); ++j) {
-        ModelCell& cell = model.cells[regionCells[j]];
-        cell.central = savedCells[j].central;
-        cell.faceCoefficient = savedCells[j].faceCoefficient;
-        cellOk[regionCells[j]] = savedCells[j].ok;
-      }
+      restoreSaved(regionCells);
     }
   }
   // Faces left without a sign-correct side coefficient take the one the fewest counting samples contradict
