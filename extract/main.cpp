@@ -257,7 +257,8 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 64));
   app.add_option("--stats-json", opt.statsJson,
                  "write run statistics as JSON (counts, timings, and for --method fitted the "
-                 "cells its sign checks could not satisfy), e.g. --stats-json stats.json");
+                 "cells its sign checks could not satisfy and the holes at uncrossed edges it found and "
+                 "closed), e.g. --stats-json stats.json");
   app.add_option("--threads", opt.threads,
                  "worker threads, 0 = all (default); the model does not depend on it, e.g. --threads 1")
       ->check(CLI::Range(0, 1024));
