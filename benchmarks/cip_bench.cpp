@@ -15,14 +15,14 @@
 #include <fstream>
 #include <functional>
 
-#include "cip/analytic_field.h"
-#include "cip/continuity_check.h"
-#include "cip/marching_cubes.h"
-#include "cip/model_builder.h"
-#include "cip/model_file.h"
-#include "cip/ply.h"
-#include "cip/surface_fidelity.h"
-#include "cip/volume_reader.h"
+#include "cip/measure/continuity_check.h"
+#include "cip/measure/surface_fidelity.h"
+#include "cip/mesh/marching_cubes.h"
+#include "cip/mesh/ply.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
+#include "cip/readers/volume_reader.h"
+#include "cip/volume/analytic_field.h"
 #include "method_tables.h"
 #include "openvdb_peer.h"
 

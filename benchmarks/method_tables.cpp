@@ -13,13 +13,13 @@
 #include <string>
 #include <vector>
 
-#include "cip/analytic_field.h"
-#include "cip/marching_cubes.h"
-#include "cip/model_builder.h"
-#include "cip/patch_fitting.h"
-#include "cip/surface_fidelity.h"
-#include "cip/tricubic_reference.h"
-#include "cip/volume_reader.h"
+#include "cip/measure/surface_fidelity.h"
+#include "cip/mesh/marching_cubes.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/patch_fitting.h"
+#include "cip/readers/volume_reader.h"
+#include "cip/reference/tricubic_reference.h"
+#include "cip/volume/analytic_field.h"
 
 namespace cipbench {
 

@@ -3,7 +3,7 @@
 #pragma once
 #include <memory>
 
-#include "cip/dense_grid.h"
+#include "cip/volume/dense_grid.h"
 
 namespace cipbench {
 

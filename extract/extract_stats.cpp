@@ -3,7 +3,7 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
-#include "cip/atomic_file.h"
+#include "cip/core/atomic_file.h"
 
 namespace cip {
 

@@ -4,8 +4,8 @@
 #include <optional>
 #include <string>
 
-#include "cip/model.h"
-#include "cip/patch_fitting.h"
+#include "cip/model/model.h"
+#include "cip/model/patch_fitting.h"
 
 namespace cip {
 

@@ -4,17 +4,18 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <memory>
 #include <optional>
 
-#include "cip/analytic_field.h"
-#include "cip/error.h"
-#include "cip/marching_cubes.h"
-#include "cip/model_builder.h"
-#include "cip/model_file.h"
-#include "cip/patch_mesh.h"
-#include "cip/ply.h"
-#include "cip/progress_bar.h"
-#include "cip/volume_reader.h"
+#include "cip/core/error.h"
+#include "cip/core/progress_bar.h"
+#include "cip/mesh/marching_cubes.h"
+#include "cip/mesh/patch_mesh.h"
+#include "cip/mesh/ply.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
+#include "cip/readers/volume_reader.h"
+#include "cip/volume/analytic_field.h"
 #include "extract_stats.h"
 
 namespace {
@@ -42,68 +43,17 @@ cip::Vec3 vec3(const std::vector<double>& v, const cip::Vec3& fallback, const ch
   return cip::Vec3(v[0], v[1], v[2]);
 }
 
-int run(const Options& opt) {
-  cip::ExtractStats stats;
-  stats.input = opt.input;
-  auto t0 = Clock::now();
+/// The volume to build from: a file's bricks, or an analytic field sampled on a grid.
+struct Input {
   cip::SparseVolume volume;
-  std::unique_ptr<cip::AnalyticField> field;
-  std::optional<double> defaultIso;
-  const bool isFile = std::filesystem::exists(opt.input);
-  if (!isFile && (field = cip::makeAnalyticField(opt.input))) {
-    volume = cip::fromDense(cip::sampleField(
-        *field, opt.resolution,
-        opt.input + " sampled at " + std::to_string(opt.resolution) + " cells per axis over [-1,1]^3"));
-    defaultIso = field->defaultIsovalue();
-    stats.inputType = "analytic field " + opt.input;
-  } else if (!isFile) {
-    std::string names;
-    for (auto& n : cip::analyticFieldNames()) names += (names.empty() ? "" : ", ") + n;
-    throw cip::Error(opt.input + ": no such file, and not an analytic field (" + names + ")");
-  } else {
-    cip::VolumeReadOptions read;
-    if (!opt.dims.empty() || !opt.type.empty()) {
-      if (opt.dims.empty() || opt.type.empty()) throw cip::Error("raw input needs both --dims and --type");
-      cip::RawFormat f;
-      f.dims = cip::parseDims(opt.dims);
-      f.type = cip::parseSampleType(opt.type);
-      f.endian = cip::parseEndian(opt.endian);
-      f.spacing = vec3(opt.spacing, cip::Vec3::Ones(), "--spacing");
-      f.origin = vec3(opt.origin, cip::Vec3::Zero(), "--origin");
-      f.offset = opt.offset;
-      read.raw = f;
-    }
-    read.vdbGrid = opt.grid;
-    // Sparse bricks keep the samples the reference reads around their cells, so the model is the one of
-    // the whole volume.
-    if (opt.method == "fitted" && opt.normals != "exact")
-      read.apron = cip::referenceReach(cip::parseReconstruction(opt.reconstruction));
-    volume = cip::readVolume(opt.input, read);
-    if (volume.isLevelSet) defaultIso = 0.0;
-    stats.inputType = cip::describeVolume(volume);
-  }
-  stats.dims = volume.geometry.dims;
-  stats.seconds["read"] = secondsSince(t0);
+  std::unique_ptr<cip::AnalyticField> field;  ///< set for analytic fields (exact normals need it)
+  std::optional<double> defaultIso;           ///< the input's own isovalue, when it has one
+};
 
+/// What the command line asks the builder for, all but the isovalue (which may come from the input).
+cip::BuildOptions buildOptions(const Options& opt) {
   cip::BuildOptions build;
-  if (opt.iso) {
-    build.isovalue = *opt.iso;
-  } else if (defaultIso) {
-    build.isovalue = *defaultIso;
-  } else {
-    throw cip::Error(opt.input + ": no default isovalue for this input; give one with --iso");
-  }
-  auto [lo, hi] = volume.range();
-  if (!(build.isovalue > lo && build.isovalue < hi)) {
-    std::fprintf(stderr,
-                 "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n",
-                 build.isovalue, lo, hi);
-  }
   build.normals = cip::parseNormalMode(opt.normals);
-  if (build.normals == cip::NormalMode::Exact && !field) {
-    throw cip::Error("--normals exact needs an analytic field as input (sampled volumes: edge or gradient)");
-  }
-  build.exactField = build.normals == cip::NormalMode::Exact ? field.get() : nullptr;
   if (opt.central == "zero") {
     build.central = cip::CentralRule::Zero;
   } else if (opt.central == "interior") {
@@ -120,69 +70,160 @@ int run(const Options& opt) {
   }
   build.skipNonFinite = opt.skipNonFinite;
   build.threads = opt.threads;
-  stats.isovalue = build.isovalue;
+  return build;
+}
+
+/// Reads the input file, or samples the analytic field it names. Bricks of sparse inputs keep the samples
+/// that `build` reads around their cells (brickApron), so the model is the one of the whole volume.
+Input readInput(const Options& opt, const cip::BuildOptions& build, cip::ExtractStats& stats) {
+  Input in;
+  const bool isFile = std::filesystem::exists(opt.input);
+  if (!isFile && (in.field = cip::makeAnalyticField(opt.input))) {
+    in.volume = cip::fromDense(cip::sampleField(
+        *in.field, opt.resolution,
+        opt.input + " sampled at " + std::to_string(opt.resolution) + " cells per axis over [-1,1]^3"));
+    in.defaultIso = in.field->defaultIsovalue();
+    stats.inputType = "analytic field " + opt.input;
+    return in;
+  }
+  if (!isFile) {
+    std::string names;
+    for (auto& n : cip::analyticFieldNames()) names += (names.empty() ? "" : ", ") + n;
+    throw cip::Error(opt.input + ": no such file, and not an analytic field (" + names + ")");
+  }
+  cip::VolumeReadOptions read;
+  if (!opt.dims.empty() || !opt.type.empty()) {
+    if (opt.dims.empty() || opt.type.empty()) throw cip::Error("raw input needs both --dims and --type");
+    cip::RawFormat f;
+    f.dims = cip::parseDims(opt.dims);
+    f.type = cip::parseSampleType(opt.type);
+    f.endian = cip::parseEndian(opt.endian);
+    f.spacing = vec3(opt.spacing, cip::Vec3::Ones(), "--spacing");
+    f.origin = vec3(opt.origin, cip::Vec3::Zero(), "--origin");
+    f.offset = opt.offset;
+    read.raw = f;
+  }
+  read.vdbGrid = opt.grid;
+  read.apron = cip::brickApron(build);
+  in.volume = cip::readVolume(opt.input, read);
+  if (in.volume.isLevelSet) in.defaultIso = 0.0;
+  stats.inputType = cip::describeVolume(in.volume);
+  return in;
+}
+
+/// The isovalue: --iso, else the input's own; warns when it lies outside the data.
+double isovalue(const Options& opt, const Input& in) {
+  double iso = 0;
+  if (opt.iso) {
+    iso = *opt.iso;
+  } else if (in.defaultIso) {
+    iso = *in.defaultIso;
+  } else {
+    throw cip::Error(opt.input + ": no default isovalue for this input; give one with --iso");
+  }
+  auto [lo, hi] = in.volume.range();
+  if (!(iso > lo && iso < hi)) {
+    std::fprintf(stderr,
+                 "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n", iso,
+                 lo, hi);
+  }
+  return iso;
+}
+
+/// The marching-cubes and patch meshes the command line asks for.
+void writeMeshes(const Options& opt, const cip::Model& model, cip::ExtractStats& stats) {
+  if (!opt.mcMesh.empty()) {
+    auto t = Clock::now();
+    cip::MarchingCubesOptions mo;
+    mo.threads = opt.threads;
+    mo.recordCells = false;
+    cip::TriangleMesh mesh = cip::marchingCubes(model, mo);
+    stats.bytesWritten[opt.mcMesh] = cip::writePly(mesh, opt.mcMesh);
+    stats.seconds["marching_cubes"] = secondsSince(t);
+  }
+  if (!opt.patchMesh.empty()) {
+    auto t = Clock::now();
+    cip::PatchMeshOptions po;
+    po.threads = opt.threads;
+    cip::TriangleMesh mesh = cip::patchMesh(model, opt.subdiv, po);
+    stats.bytesWritten[opt.patchMesh] = cip::writePly(mesh, opt.patchMesh);
+    stats.seconds["patch_mesh"] = secondsSince(t);
+  }
+}
+
+/// The one-line summary and the warnings about cells the sign checks could not satisfy.
+void printSummary(const Options& opt, const cip::BuildOptions& build, const cip::Model& model,
+                  const cip::ExtractStats& stats) {
+  std::fprintf(stderr, "%s: %zu non-empty cells, %zu isovertices, %zu bytes\n", opt.output.c_str(),
+               model.cells.size(), model.vertices.size(), stats.bytesWritten.at(opt.output));
+  const std::size_t unresolved = stats.fitting ? stats.fitting->unresolvedCells.size() : 0;
+  if (unresolved > 0)
+    std::fprintf(stderr,
+                 "%zu cells have no coefficient that keeps the reference's sign everywhere checked; they may "
+                 "show small wrong-sign regions (docs/method.md)\n",
+                 unresolved);
+  // On smooth data central8 leaves a few in 10^4 cells so; steps (CT) make it ring, and many more.
+  if (model.reconstruction == cip::Reconstruction::Central8 && unresolved * 1000 > model.cells.size())
+    std::fprintf(stderr,
+                 "that is %.2f %% of the cells: the data look too steep for the central8 reconstruction; "
+                 "--reconstruction monotone follows steps\n",
+                 100.0 * static_cast<double>(unresolved) / static_cast<double>(model.cells.size()));
+  if (model.reconstruction && build.reconstruction == cip::Reconstruction::Auto &&
+      stats.fitting->sampling.cells > 0)
+    std::fprintf(stderr,
+                 "reference: %s (samples near the surface: effective wavelength %.2f samples; central8 "
+                 "from %.1f)\n",
+                 cip::toString(*model.reconstruction), stats.fitting->sampling.wavelength,
+                 cip::kCentral8Wavelength);
+}
+
+/// Builds the model, naming the flag that skips NaN cells when the input has some.
+cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options, cip::ExtractStats& stats) {
+  cip::ProgressBar bar("building", !opt.quiet);
+  options.progress = [&](double f) { bar.update(f); };
+  cip::FittingStats fitting;
+  if (options.method == cip::PatchMethod::Fitted) options.fittingStats = &fitting;
+  if (options.normals == cip::NormalMode::Exact) {
+    if (!in.field)
+      throw cip::Error(
+          "--normals exact needs an analytic field as input (sampled volumes: edge or gradient)");
+    options.exactField = in.field.get();
+  }
+  cip::Model model;
+  try {
+    model = cip::buildModel(in.volume.geometry, in.volume.bricks, options, in.volume.description);
+  } catch (const cip::NonFiniteSampleError& e) {
+    throw cip::Error(std::string(e.what()) + "; use --skip-nonfinite to leave such cells empty");
+  }
+  if (options.fittingStats) stats.fitting = fitting;
+  return model;
+}
+
+int run(const Options& opt) {
+  cip::ExtractStats stats;
+  stats.input = opt.input;
+  auto t0 = Clock::now();
+  cip::BuildOptions options = buildOptions(opt);
+  Input in = readInput(opt, options, stats);
+  stats.dims = in.volume.geometry.dims;
+  stats.seconds["read"] = secondsSince(t0);
+
+  options.isovalue = isovalue(opt, in);
+  stats.isovalue = options.isovalue;
   stats.normals = opt.normals;
   stats.central = opt.central;
   stats.method = opt.method;
   stats.reconstruction = opt.reconstruction;
 
   auto t1 = Clock::now();
-  cip::Model model;
-  {
-    cip::ProgressBar bar("building", !opt.quiet);
-    build.progress = [&](double f) { bar.update(f); };
-    cip::FittingStats fitting;
-    if (build.method == cip::PatchMethod::Fitted) build.fittingStats = &fitting;
-    model = cip::buildModel(volume.geometry, volume.bricks, build, volume.description);
-    if (build.fittingStats) stats.fitting = fitting;
-  }
+  cip::Model model = build(opt, in, options, stats);
   stats.seconds["build"] = secondsSince(t1);
 
   auto t2 = Clock::now();
   stats.bytesWritten[opt.output] = cip::writeModel(model, opt.output);
   stats.seconds["write_model"] = secondsSince(t2);
-
-  if (!opt.mcMesh.empty()) {
-    auto t3 = Clock::now();
-    cip::MarchingCubesOptions mo;
-    mo.threads = opt.threads;
-    mo.recordCells = false;
-    cip::TriangleMesh mesh = cip::marchingCubes(model, mo);
-    stats.bytesWritten[opt.mcMesh] = cip::writePly(mesh, opt.mcMesh);
-    stats.seconds["marching_cubes"] = secondsSince(t3);
-  }
-  if (!opt.patchMesh.empty()) {
-    auto t4 = Clock::now();
-    cip::PatchMeshOptions po;
-    po.threads = opt.threads;
-    cip::TriangleMesh mesh = cip::patchMesh(model, opt.subdiv, po);
-    stats.bytesWritten[opt.patchMesh] = cip::writePly(mesh, opt.patchMesh);
-    stats.seconds["patch_mesh"] = secondsSince(t4);
-  }
-  if (!opt.quiet) {
-    std::fprintf(stderr, "%s: %zu non-empty cells, %zu isovertices, %zu bytes\n", opt.output.c_str(),
-                 model.cells.size(), model.vertices.size(), stats.bytesWritten[opt.output]);
-    const std::size_t unresolved = stats.fitting ? stats.fitting->unresolvedCells.size() : 0;
-    if (unresolved > 0)
-      std::fprintf(
-          stderr,
-          "%zu cells have no coefficient that keeps the reference's sign everywhere checked; they may "
-          "show small wrong-sign regions (docs/method.md)\n",
-          unresolved);
-    // On smooth data central8 leaves a few in 10^4 cells so; steps (CT) make it ring, and many more.
-    if (model.reconstruction == cip::Reconstruction::Central8 && unresolved * 1000 > model.cells.size())
-      std::fprintf(stderr,
-                   "that is %.2f %% of the cells: the data look too steep for the central8 reconstruction; "
-                   "--reconstruction monotone follows steps\n",
-                   100.0 * static_cast<double>(unresolved) / static_cast<double>(model.cells.size()));
-    if (model.reconstruction && build.reconstruction == cip::Reconstruction::Auto &&
-        stats.fitting->sampling.cells > 0)
-      std::fprintf(stderr,
-                   "reference: %s (samples near the surface: effective wavelength %.2f samples; central8 "
-                   "from %.1f)\n",
-                   cip::toString(*model.reconstruction), stats.fitting->sampling.wavelength,
-                   cip::kCentral8Wavelength);
-  }
+  writeMeshes(opt, model, stats);
+  if (!opt.quiet) printSummary(opt, options, model, stats);
   if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, model);
   return 0;
 }

@@ -7,11 +7,11 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
-#include "cip/atomic_file.h"
-#include "cip/error.h"
-#include "cip/model_file.h"
-#include "cip/ply.h"
-#include "cip/progress_bar.h"
+#include "cip/core/atomic_file.h"
+#include "cip/core/error.h"
+#include "cip/core/progress_bar.h"
+#include "cip/mesh/ply.h"
+#include "cip/model/model_file.h"
 #include "image_output.h"
 #include "mesh_scene.h"
 #include "patch_scene.h"

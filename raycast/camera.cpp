@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "cip/error.h"
+#include "cip/core/error.h"
 
 namespace cip::raycast {
 

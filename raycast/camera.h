@@ -4,7 +4,7 @@
 #include <Eigen/Geometry>
 #include <optional>
 
-#include "cip/dense_grid.h"
+#include "cip/core/vec3.h"
 
 namespace cip::raycast {
 

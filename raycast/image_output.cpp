@@ -10,7 +10,7 @@
 #include <functional>
 #include <vector>
 
-#include "cip/error.h"
+#include "cip/core/error.h"
 
 namespace cip::raycast {
 

@@ -4,7 +4,7 @@
 #include <exception>
 
 #include "app.h"
-#include "cip/error.h"
+#include "cip/core/error.h"
 
 int main(int argc, char** argv) {
   cip::raycast::AppOptions opt;

@@ -1,6 +1,6 @@
 #include "mesh_scene.h"
 
-#include "cip/error.h"
+#include "cip/core/error.h"
 
 namespace cip::raycast {
 

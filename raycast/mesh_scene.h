@@ -2,7 +2,7 @@
 /// @brief A triangle mesh (e.g. read from PLY) as Embree triangles, rendered with the same cameras and
 /// shading as corner-patch models. Single-precision intersection (Embree's triangles).
 #pragma once
-#include "cip/triangle_mesh.h"
+#include "cip/mesh/triangle_mesh.h"
 #include "scene.h"
 
 namespace cip::raycast {

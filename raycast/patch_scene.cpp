@@ -4,7 +4,7 @@
 
 #include <cmath>
 
-#include "cip/ray_patch.h"
+#include "cip/patch/ray_patch.h"
 
 namespace cip::raycast {
 

@@ -1,12 +1,12 @@
 /// @file patch_scene.h
 /// @brief A corner-patch model as an Embree user geometry: one primitive per non-empty cell, exact ray-patch
-/// intersection in double precision (cip/ray_patch.h), normals and curvature from the patch's exact
+/// intersection in double precision (cip/patch/ray_patch.h), normals and curvature from the patch's exact
 /// derivatives.
 #pragma once
 #include <vector>
 
-#include "cip/corner_patch.h"
-#include "cip/model.h"
+#include "cip/model/model.h"
+#include "cip/patch/corner_patch.h"
 #include "scene.h"
 
 namespace cip::raycast {

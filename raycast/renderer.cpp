@@ -10,7 +10,7 @@
 #include <cmath>
 #include <mutex>
 
-#include "cip/error.h"
+#include "cip/core/error.h"
 
 namespace cip::raycast {
 

@@ -3,7 +3,7 @@
 #include <cmath>
 #include <string>
 
-#include "cip/error.h"
+#include "cip/core/error.h"
 
 namespace cip::raycast {
 

@@ -1,5 +1,5 @@
 // The analytic test fields: gradients against their values, and lattice evaluation against point evaluation.
-#include "cip/analytic_field.h"
+#include "cip/volume/analytic_field.h"
 
 #include <gtest/gtest.h>
 

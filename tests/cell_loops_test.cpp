@@ -1,7 +1,7 @@
 // Loops of all 256 sign configurations against an independent oracle: on the cube's surface (a sphere) the
 // loops separate the sign regions, so every loop is the set of crossed edges between one positive and one
 // negative region, and #loops = #regions - 1.
-#include "cip/cell_loops.h"
+#include "cip/topology/cell_loops.h"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <map>
 #include <set>
 
-#include "cip/cube_topology.h"
+#include "cip/topology/cube_topology.h"
 
 using namespace cip;
 

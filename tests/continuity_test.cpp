@@ -5,10 +5,10 @@
 #include <string>
 #include <tuple>
 
-#include "cip/analytic_field.h"
-#include "cip/continuity_check.h"
-#include "cip/cube_topology.h"
-#include "cip/model_builder.h"
+#include "cip/measure/continuity_check.h"
+#include "cip/model/model_builder.h"
+#include "cip/topology/cube_topology.h"
+#include "cip/volume/analytic_field.h"
 #include "support/random_volume.h"
 
 using namespace cip;

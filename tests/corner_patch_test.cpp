@@ -1,15 +1,15 @@
 // Properties of single-cell corner patches over all 256 sign configurations, and the paper's coefficient
 // rules checked on hand-computed cells.
-#include "cip/corner_patch.h"
+#include "cip/patch/corner_patch.h"
 
 #include <gtest/gtest.h>
 
 #include <random>
 
-#include "cip/cell_loops.h"
-#include "cip/cube_topology.h"
-#include "cip/model_builder.h"
-#include "cip/patch_coefficients.h"
+#include "cip/model/model_builder.h"
+#include "cip/patch/patch_coefficients.h"
+#include "cip/topology/cell_loops.h"
+#include "cip/topology/cube_topology.h"
 #include "support/random_volume.h"
 
 using namespace cip;

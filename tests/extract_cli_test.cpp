@@ -4,11 +4,11 @@
 
 #include <string>
 
-#include "cip/analytic_field.h"
-#include "cip/model_builder.h"
-#include "cip/model_file.h"
-#include "cip/patch_fitting.h"
-#include "cip/volume_reader.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
+#include "cip/model/patch_fitting.h"
+#include "cip/readers/volume_reader.h"
+#include "cip/volume/analytic_field.h"
 #include "support/command_line.h"
 #include "support/volume_files.h"
 

@@ -13,7 +13,7 @@
 #include <sstream>
 #include <vector>
 
-#include "cip/model_file.h"
+#include "cip/model/model_file.h"
 #include "support/command_line.h"
 
 namespace fs = std::filesystem;

@@ -1,6 +1,6 @@
 // Isovertex normals (isovertex.h): the normal of an isovertex that lies on a grid point is kept from tilting
 // its corner plane across the uncrossed grid edges from that point, and left alone along crossed ones.
-#include "cip/isovertex.h"
+#include "cip/reference/isovertex.h"
 
 #include <gtest/gtest.h>
 

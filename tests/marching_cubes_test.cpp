@@ -1,7 +1,7 @@
 // Marching cubes on the model grid: loop triangulations for every configuration, closed and consistently
 // oriented meshes on analytic and random volumes, vertices identical to the model's isovertices, Euler
 // characteristics, normals and thread-count independence.
-#include "cip/marching_cubes.h"
+#include "cip/mesh/marching_cubes.h"
 
 #include <gtest/gtest.h>
 
@@ -9,11 +9,11 @@
 #include <iostream>
 #include <map>
 
-#include "cip/analytic_field.h"
-#include "cip/cell_loops.h"
-#include "cip/cube_topology.h"
-#include "cip/loop_triangulation.h"
-#include "cip/model_builder.h"
+#include "cip/mesh/loop_triangulation.h"
+#include "cip/model/model_builder.h"
+#include "cip/topology/cell_loops.h"
+#include "cip/topology/cube_topology.h"
+#include "cip/volume/analytic_field.h"
 #include "support/random_volume.h"
 
 using namespace cip;

@@ -1,5 +1,5 @@
 // Model file: round trip, rejection of damaged files, identical bytes for any thread count.
-#include "cip/model_file.h"
+#include "cip/model/model_file.h"
 
 #include <gtest/gtest.h>
 #include <zlib.h>
@@ -9,9 +9,9 @@
 #include <fstream>
 #include <random>
 
-#include "cip/analytic_field.h"
-#include "cip/error.h"
-#include "cip/model_builder.h"
+#include "cip/core/error.h"
+#include "cip/model/model_builder.h"
+#include "cip/volume/analytic_field.h"
 #include "support/random_volume.h"
 
 using namespace cip;

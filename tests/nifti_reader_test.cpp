@@ -1,12 +1,12 @@
 // NIfTI-1 reader and writer: round trips through .nii and .nii.gz (with scl_slope/scl_inter), hand-made
 // headers in both byte orders, origin from qform/sform, and the error paths.
-#include "cip/nifti_reader.h"
+#include "cip/readers/nifti_reader.h"
 
 #include <gtest/gtest.h>
 
 #include <cstring>
 
-#include "cip/nrrd_reader.h"
+#include "cip/readers/nrrd_reader.h"
 #include "support/volume_files.h"
 
 namespace cip {

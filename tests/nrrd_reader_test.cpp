@@ -1,6 +1,6 @@
 // NRRD reader: the shared .nhdr volumes, header parsing (type aliases, 4-D with a leading size-1 axis, space
 // directions, origin), attached and detached raw and gzip data, skips, and the error paths.
-#include "cip/nrrd_reader.h"
+#include "cip/readers/nrrd_reader.h"
 
 #include <gtest/gtest.h>
 

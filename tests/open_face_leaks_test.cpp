@@ -3,11 +3,11 @@
 // paper construction leaks in many cells of the bundled volume, the fitted one in a few.
 #include <gtest/gtest.h>
 
-#include "cip/analytic_field.h"
-#include "cip/cube_topology.h"
-#include "cip/model_builder.h"
-#include "cip/surface_fidelity.h"
-#include "cip/volume_reader.h"
+#include "cip/measure/surface_fidelity.h"
+#include "cip/model/model_builder.h"
+#include "cip/readers/volume_reader.h"
+#include "cip/topology/cube_topology.h"
+#include "cip/volume/analytic_field.h"
 #include "support/volume_files.h"
 
 using namespace cip;

@@ -1,7 +1,7 @@
 // The fitted patch construction (PatchMethod::Fitted): no spurious sheets on analytic fields, fidelity
 // against the paper's construction, thread independence, model file round trip, the cubic edge root on
 // sampled data.
-#include "cip/patch_fitting.h"
+#include "cip/model/patch_fitting.h"
 
 #include <gtest/gtest.h>
 
@@ -10,16 +10,16 @@
 #include <tuple>
 #include <vector>
 
-#include "cip/analytic_field.h"
-#include "cip/continuity_check.h"
-#include "cip/cube_topology.h"
-#include "cip/error.h"
-#include "cip/model_builder.h"
-#include "cip/model_file.h"
-#include "cip/patch_coefficients.h"
-#include "cip/surface_fidelity.h"
-#include "cip/tricubic_reference.h"
-#include "cip/volume_reader.h"
+#include "cip/core/error.h"
+#include "cip/measure/continuity_check.h"
+#include "cip/measure/surface_fidelity.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
+#include "cip/patch/patch_coefficients.h"
+#include "cip/readers/volume_reader.h"
+#include "cip/reference/tricubic_reference.h"
+#include "cip/topology/cube_topology.h"
+#include "cip/volume/analytic_field.h"
 #include "support/volume_files.h"
 
 using namespace cip;

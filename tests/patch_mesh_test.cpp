@@ -1,7 +1,7 @@
 // Triangle meshes of the corner-patch surface: crack-free (closed) on analytic and random volumes, vertices
 // on the patches' zero sets, close to the exact sphere, normals from the patch gradients, thread-count
 // independence.
-#include "cip/patch_mesh.h"
+#include "cip/mesh/patch_mesh.h"
 
 #include <gtest/gtest.h>
 
@@ -9,9 +9,9 @@
 #include <algorithm>
 #include <iostream>
 
-#include "cip/analytic_field.h"
-#include "cip/error.h"
-#include "cip/model_builder.h"
+#include "cip/core/error.h"
+#include "cip/model/model_builder.h"
+#include "cip/volume/analytic_field.h"
 #include "support/random_volume.h"
 
 using namespace cip;

@@ -1,6 +1,6 @@
 // PLY writing and reading: round trips in all three encodings, hand-written files with extra properties,
 // elements and polygons, and rejection of truncated, corrupt and oversized input.
-#include "cip/ply.h"
+#include "cip/mesh/ply.h"
 
 #include <gtest/gtest.h>
 
@@ -8,7 +8,7 @@
 #include <random>
 #include <string>
 
-#include "cip/error.h"
+#include "cip/core/error.h"
 
 using namespace cip;
 

@@ -1,15 +1,16 @@
 // The reference's data at grid points (point_hermite.h): a table computed over tiles gives every cell and
 // edge exactly the data of the per-cell reference, at the border too; the data are the derivatives of
 // polynomials the reconstructions reproduce.
-#include "cip/point_hermite.h"
+#include "cip/reference/point_hermite.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <random>
 
-#include "cip/cube_topology.h"
-#include "cip/error.h"
+#include "cip/core/error.h"
+#include "cip/reference/point_hermite_table.h"
+#include "cip/topology/cube_topology.h"
 #include "support/random_volume.h"
 
 using namespace cip;

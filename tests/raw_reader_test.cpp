@@ -1,6 +1,6 @@
 // Raw volume reader: the shared test volumes read as raw files, every sample type in both byte orders, and
 // the error paths (wrong sizes, bad dims, overflow, memory limit, missing file).
-#include "cip/raw_reader.h"
+#include "cip/readers/raw_reader.h"
 
 #include <gtest/gtest.h>
 

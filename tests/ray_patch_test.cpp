@@ -1,7 +1,7 @@
 // Ray-patch intersection: the Bernstein root finder against independent oracles (known factored roots, dense
 // sampling with long double evaluation plus bisection), edge cases (roots at interval ends, double roots,
 // clustered roots, near misses), the cell clip, and real patches of a sampled sphere.
-#include "cip/ray_patch.h"
+#include "cip/patch/ray_patch.h"
 
 #include <gtest/gtest.h>
 
@@ -9,8 +9,8 @@
 #include <random>
 #include <vector>
 
-#include "cip/analytic_field.h"
-#include "cip/model_builder.h"
+#include "cip/model/model_builder.h"
+#include "cip/volume/analytic_field.h"
 
 using namespace cip;
 

@@ -1,5 +1,5 @@
 // Reconstruction::Auto: the spectral estimate of the samples near the surface, and the choice it makes.
-#include "cip/reconstruction_choice.h"
+#include "cip/reference/reconstruction_choice.h"
 
 #include <gtest/gtest.h>
 
@@ -7,11 +7,11 @@
 #include <functional>
 #include <limits>
 
-#include "cip/analytic_field.h"
-#include "cip/model_builder.h"
-#include "cip/model_file.h"
-#include "cip/patch_fitting.h"
-#include "cip/volume_reader.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
+#include "cip/model/patch_fitting.h"
+#include "cip/readers/volume_reader.h"
+#include "cip/volume/analytic_field.h"
 #include "support/volume_files.h"
 
 using namespace cip;

@@ -1,6 +1,6 @@
 // The lazily checked coefficient of sign_constraints.h: the same value as clamping into the interval of every
 // counting sample, every counting sample with the right sign, and the expensive callbacks only where needed.
-#include "cip/sign_constraints.h"
+#include "cip/patch/sign_constraints.h"
 
 #include <gtest/gtest.h>
 

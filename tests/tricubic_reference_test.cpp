@@ -1,7 +1,7 @@
 // The reference field of sampled volumes (tricubic_reference.h): interpolation, linear precision, monotone
 // grid lines, C1 joins between cells, the edge root, and the overshoot it exists to avoid; for the central8
 // reconstruction also cubic precision and its better normals on smooth data.
-#include "cip/tricubic_reference.h"
+#include "cip/reference/tricubic_reference.h"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <cmath>
 #include <random>
 
-#include "cip/cube_topology.h"
+#include "cip/topology/cube_topology.h"
 #include "support/random_volume.h"
 
 using namespace cip;

@@ -2,7 +2,7 @@
 // that every cell with an active corner is owned by exactly one brick whose samples match the tree, that the
 // brick model is byte-identical to the model of the densified box, and that the sphere's isovertices lie on
 // its radius.
-#include "cip/vdb_reader.h"
+#include "cip/readers/vdb_reader.h"
 
 #include <gtest/gtest.h>
 #include <openvdb/io/Stream.h>
@@ -14,9 +14,9 @@
 #include <fstream>
 #include <map>
 
-#include "cip/model_builder.h"
-#include "cip/model_file.h"
-#include "cip/volume_reader.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
+#include "cip/readers/volume_reader.h"
 #include "support/volume_files.h"
 
 namespace cip {
@@ -159,7 +159,7 @@ TEST(VdbReader, SphereLevelSet) {
   {
     opt.reconstruction = Reconstruction::Central8;
     VdbReadOptions wide = o;
-    wide.apron = referenceReach(opt.reconstruction);
+    wide.apron = brickApron(opt);
     ASSERT_EQ(wide.apron, 4);
     SparseVolume w = readVdb(path, wide);
     ASSERT_EQ(w.bricks.size(), v.bricks.size());

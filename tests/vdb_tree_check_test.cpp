@@ -2,7 +2,7 @@
 // way OpenVDB stores a valid tree (compression, mask compression, half floats, inactive-value variants,
 // several root children, streams without grid offsets where it passes over other grids) and turn corrupt
 // sizes into errors instead of OpenVDB's huge allocations and buffer overflows.
-#include "cip/vdb_tree_check.h"
+#include "cip/readers/vdb_tree_check.h"
 
 #include <gtest/gtest.h>
 #include <openvdb/io/Stream.h>
@@ -13,8 +13,8 @@
 #include <iostream>
 #include <sstream>
 
-#include "cip/error.h"
-#include "cip/vdb_reader.h"
+#include "cip/core/error.h"
+#include "cip/readers/vdb_reader.h"
 #include "support/volume_files.h"
 
 // OpenVDB leaks a node when it gives up on some corrupt trees (docs/reliability.md); that is not cip's to

@@ -1,12 +1,12 @@
 // Format dispatch: every format through readVolume, the raw fallback, descriptions for statistics.
-#include "cip/volume_reader.h"
+#include "cip/readers/volume_reader.h"
 
 #include <gtest/gtest.h>
 
-#include "cip/model_builder.h"
-#include "cip/model_file.h"
-#include "cip/nifti_reader.h"
-#include "cip/nrrd_reader.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
+#include "cip/readers/nifti_reader.h"
+#include "cip/readers/nrrd_reader.h"
 #include "support/volume_files.h"
 
 namespace cip {

@@ -1,6 +1,6 @@
 // libFuzzer target: the .cip model loader. Anything it accepts must also evaluate without faults.
-#include "cip/error.h"
-#include "cip/model_file.h"
+#include "cip/core/error.h"
+#include "cip/model/model_file.h"
 #include "fuzz_input.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

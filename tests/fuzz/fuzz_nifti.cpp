@@ -1,6 +1,6 @@
 // libFuzzer target: NIfTI-1 header parser and reader, plain (.nii) and gzip (.nii.gz) files.
-#include "cip/error.h"
-#include "cip/nifti_reader.h"
+#include "cip/core/error.h"
+#include "cip/readers/nifti_reader.h"
 #include "fuzz_input.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

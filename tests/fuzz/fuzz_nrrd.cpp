@@ -1,8 +1,8 @@
 // libFuzzer target: NRRD header parser and the whole NRRD reader (attached raw and gzip payloads).
 #include <string_view>
 
-#include "cip/error.h"
-#include "cip/nrrd_reader.h"
+#include "cip/core/error.h"
+#include "cip/readers/nrrd_reader.h"
 #include "fuzz_input.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

@@ -1,6 +1,6 @@
 // libFuzzer target: the PLY reader used by `raycast --mesh`.
-#include "cip/error.h"
-#include "cip/ply.h"
+#include "cip/core/error.h"
+#include "cip/mesh/ply.h"
 #include "fuzz_input.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

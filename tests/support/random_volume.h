@@ -2,9 +2,9 @@
 #pragma once
 #include <random>
 
-#include "cip/cube_topology.h"
-#include "cip/dense_grid.h"
-#include "cip/isovertex.h"
+#include "cip/reference/isovertex.h"
+#include "cip/topology/cube_topology.h"
+#include "cip/volume/dense_grid.h"
 
 namespace cip::test {
 

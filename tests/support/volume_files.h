@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "cip/error.h"
+#include "cip/core/error.h"
 
 namespace cip::test {
 

@@ -1,0 +1,258 @@
+#include "cip/model/model_file.h"
+
+#include <zlib.h>
+
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <limits>
+
+#include "cip/core/atomic_file.h"
+#include "cip/core/error.h"
+#include "cip/topology/cube_topology.h"
+
+namespace cip {
+
+namespace {
+
+constexpr char kMagic[8] = {'C', 'I', 'P', 'M', 'O', 'D', 'E', 'L'};
+constexpr std::size_t kVertexBytes = 7 * 8;
+constexpr std::size_t kMaxSourceBytes = 65536;
+
+class Writer {
+ public:
+  std::vector<std::uint8_t> bytes;
+  template <class T>
+  void put(T v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    std::uint8_t b[sizeof(T)];
+    std::memcpy(b, &v, sizeof(T));  // the file is little-endian, like every platform cip supports
+    bytes.insert(bytes.end(), b, b + sizeof(T));
+  }
+};
+
+class Reader {
+ public:
+  Reader(const std::uint8_t* data, std::size_t size, const std::string& name)
+      : d_(data), n_(size), name_(name) {}
+  template <class T>
+  T get(const char* what) {
+    need(sizeof(T), what);
+    T v;
+    std::memcpy(&v, d_ + pos_, sizeof(T));
+    pos_ += sizeof(T);
+    return v;
+  }
+  double getFinite(const char* what) {
+    double v = get<double>(what);
+    if (!std::isfinite(v)) fail(std::string(what) + " is not a finite number");
+    return v;
+  }
+  void need(std::size_t bytes, const char* what) const {
+    if (bytes > n_ - pos_) fail(std::string("truncated (") + what + " runs past the end of the file)");
+  }
+  std::size_t remaining() const { return n_ - pos_; }
+  std::size_t pos() const { return pos_; }
+  const std::uint8_t* here() const { return d_ + pos_; }
+  void skip(std::size_t bytes) { pos_ += bytes; }
+  [[noreturn]] void fail(const std::string& why) const {
+    throw Error(name_ + ": damaged model file: " + why);
+  }
+
+ private:
+  const std::uint8_t* d_;
+  std::size_t n_, pos_ = 0;
+  const std::string& name_;
+};
+
+std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
+  uLong c = crc32(0L, Z_NULL, 0);
+  while (size > 0) {
+    uInt chunk = static_cast<uInt>(std::min<std::size_t>(size, 1u << 30));
+    c = crc32(c, data, chunk);
+    data += chunk;
+    size -= chunk;
+  }
+  return static_cast<std::uint32_t>(c);
+}
+
+}  // namespace
+
+std::vector<std::uint8_t> serializeModel(const Model& m) {
+  Writer w;
+  w.bytes.reserve(128 + m.source.size() + m.vertices.size() * kVertexBytes + m.cells.size() * 64 +
+                  m.corners.size() * 4);
+  for (char c : kMagic) w.put(c);
+  w.put<std::uint32_t>(kModelFileVersion);
+  for (auto d : m.geometry.dims) w.put<std::int64_t>(d);
+  for (int a = 0; a < 3; ++a) w.put<double>(m.geometry.origin[a]);
+  for (int a = 0; a < 3; ++a) w.put<double>(m.geometry.spacing[a]);
+  w.put<double>(m.isovalue);
+  w.put<std::uint8_t>(static_cast<std::uint8_t>(m.normalMode));
+  w.put<std::uint8_t>(static_cast<std::uint8_t>(m.method));
+  w.put<std::uint8_t>(m.reconstruction ? static_cast<std::uint8_t>(1 + static_cast<int>(*m.reconstruction))
+                                       : 0);
+  w.put<std::uint8_t>(0);
+  std::string source = m.source.substr(0, kMaxSourceBytes);
+  w.put<std::uint32_t>(static_cast<std::uint32_t>(source.size()));
+  w.bytes.insert(w.bytes.end(), source.begin(), source.end());
+  w.put<std::uint64_t>(m.vertices.size());
+  w.put<std::uint64_t>(m.cells.size());
+  w.put<std::uint64_t>(m.corners.size());
+  for (const IsoVertex& v : m.vertices) {
+    for (int a = 0; a < 3; ++a) w.put<double>(v.position[a]);
+    for (int a = 0; a < 3; ++a) w.put<double>(v.normal[a]);
+    w.put<double>(v.weight);
+  }
+  for (const ModelCell& c : m.cells) {
+    for (auto x : c.index) w.put<std::uint32_t>(x);
+    w.put<std::uint8_t>(c.config);
+    w.put<std::uint8_t>(c.pairing03);
+    w.put<std::uint8_t>(c.numLoops);
+    for (auto s : c.loopSize) w.put<std::uint8_t>(s);
+    for (int k = 0; k < c.numCorners(); ++k) w.put<std::uint32_t>(m.corners[c.firstCorner + k]);
+    std::uint8_t faces = cube::crossedFaces(c.config);
+    for (int f = 0; f < 6; ++f)
+      if ((faces >> f) & 1) w.put<double>(c.faceCoefficient[f]);
+    w.put<double>(c.central);
+  }
+  w.put<std::uint32_t>(crc(w.bytes.data(), w.bytes.size()));
+  return std::move(w.bytes);
+}
+
+Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& name) {
+  Reader r(data, size, name);
+  Model m;
+  r.need(sizeof(kMagic), "magic number");
+  if (std::memcmp(data, kMagic, sizeof(kMagic)) != 0)
+    throw Error(name + ": not a cip model file (bad magic number)");
+  r.skip(sizeof(kMagic));
+  auto version = r.get<std::uint32_t>("version");
+  if (version != kModelFileVersion) {
+    throw Error(name + ": model file version " + std::to_string(version) +
+                " is not supported (this build reads " + std::to_string(kModelFileVersion) + ")");
+  }
+  for (int a = 0; a < 3; ++a) {
+    auto d = r.get<std::int64_t>("dims");
+    if (d < 1 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
+    m.geometry.dims[a] = d;
+  }
+  for (int a = 0; a < 3; ++a) m.geometry.origin[a] = r.getFinite("origin");
+  for (int a = 0; a < 3; ++a) {
+    m.geometry.spacing[a] = r.getFinite("spacing");
+    if (!(m.geometry.spacing[a] > 0)) r.fail("spacing must be positive");
+  }
+  m.isovalue = r.getFinite("isovalue");
+  auto mode = r.get<std::uint8_t>("normal mode");
+  if (mode > 2) r.fail("unknown normal mode " + std::to_string(mode));
+  m.normalMode = static_cast<NormalMode>(mode);
+  auto method = r.get<std::uint8_t>("method");
+  if (method > static_cast<std::uint8_t>(PatchMethod::Fitted)) {
+    r.fail("unknown patch method " + std::to_string(method));
+  }
+  m.method = static_cast<PatchMethod>(method);
+  const auto reconstruction = r.get<std::uint8_t>("reconstruction");
+  if (reconstruction > 1 + static_cast<int>(Reconstruction::Central8)) {
+    r.fail("unknown reconstruction " + std::to_string(reconstruction));
+  }
+  if (reconstruction > 0) m.reconstruction = static_cast<Reconstruction>(reconstruction - 1);
+  r.get<std::uint8_t>("reserved");
+  auto sourceLen = r.get<std::uint32_t>("source length");
+  if (sourceLen > kMaxSourceBytes) r.fail("source description longer than 64 KiB");
+  r.need(sourceLen, "source description");
+  m.source.assign(reinterpret_cast<const char*>(r.here()), sourceLen);
+  r.skip(sourceLen);
+  auto numVertices = r.get<std::uint64_t>("vertex count");
+  auto numCells = r.get<std::uint64_t>("cell count");
+  auto numCorners = r.get<std::uint64_t>("corner count");
+  // Every count must be backed by bytes before anything is allocated.
+  if (numVertices > r.remaining() / kVertexBytes)
+    r.fail("vertex count " + std::to_string(numVertices) + " exceeds the file");
+  if (numCorners > r.remaining() / 4 || numCorners > std::numeric_limits<std::uint32_t>::max())
+    r.fail("corner count " + std::to_string(numCorners) + " exceeds the file");
+  if (numCells > r.remaining() / 35) r.fail("cell count " + std::to_string(numCells) + " exceeds the file");
+  if (numVertices > std::numeric_limits<std::uint32_t>::max()) r.fail("vertex count out of range");
+  m.vertices.resize(numVertices);
+  for (IsoVertex& v : m.vertices) {
+    for (int a = 0; a < 3; ++a) v.position[a] = r.getFinite("vertex position");
+    for (int a = 0; a < 3; ++a) v.normal[a] = r.getFinite("vertex normal");
+    v.weight = r.getFinite("corner coefficient");
+    if (std::abs(v.normal.norm() - 1.0) > 1e-6) r.fail("vertex normal is not a unit vector");
+  }
+  m.cells.resize(numCells);
+  m.corners.resize(numCorners);
+  std::uint64_t cornersSoFar = 0;
+  std::uint64_t prevKey = 0;
+  for (std::uint64_t ci = 0; ci < numCells; ++ci) {
+    ModelCell& c = m.cells[ci];
+    for (int a = 0; a < 3; ++a) {
+      c.index[a] = r.get<std::uint32_t>("cell index");
+      if (c.index[a] + std::int64_t(1) >= m.geometry.dims[a])
+        r.fail("cell " + std::to_string(ci) + " lies outside the grid");
+    }
+    std::uint64_t key =
+        c.index[0] + static_cast<std::uint64_t>(m.geometry.dims[0]) *
+                         (c.index[1] + static_cast<std::uint64_t>(m.geometry.dims[1]) * c.index[2]);
+    if (ci > 0 && key <= prevKey)
+      r.fail("cells are not in increasing grid order at cell " + std::to_string(ci));
+    prevKey = key;
+    c.config = r.get<std::uint8_t>("cell configuration");
+    if (c.config == 0 || c.config == 0xFF)
+      r.fail("cell " + std::to_string(ci) + " has an empty configuration");
+    c.pairing03 = r.get<std::uint8_t>("face pairing");
+    c.numLoops = r.get<std::uint8_t>("loop count");
+    for (auto& s : c.loopSize) s = r.get<std::uint8_t>("loop size");
+    CellLoops expected = buildCellLoops(c.config, c.pairing03);
+    if (c.numLoops != expected.numLoops || c.loopSize != expected.loopSize)
+      r.fail("cell " + std::to_string(ci) + " loops do not match its configuration");
+    c.firstCorner = static_cast<std::uint32_t>(cornersSoFar);
+    int n = c.numCorners();
+    if (cornersSoFar + static_cast<std::uint64_t>(n) > numCorners)
+      r.fail("more corners than the corner count");
+    Vec3 origin(c.index[0], c.index[1], c.index[2]);
+    for (int k = 0; k < n; ++k) {
+      auto vi = r.get<std::uint32_t>("corner index");
+      if (vi >= numVertices)
+        r.fail("vertex index " + std::to_string(vi) + " out of range in cell " + std::to_string(ci));
+      // The vertex must lie on the cell edge this corner belongs to.
+      int e = expected.edges[k];
+      Vec3 local = m.vertices[vi].position - origin;
+      auto start = cube::vertexCoords(cube::edgeVertex(e, 0));
+      int axis = cube::edgeAxis(e);
+      for (int a = 0; a < 3; ++a) {
+        bool ok = a == axis ? (local[a] >= 0 && local[a] <= 1) : local[a] == start[a];
+        if (!ok) r.fail("vertex " + std::to_string(vi) + " is not on its edge of cell " + std::to_string(ci));
+      }
+      m.corners[cornersSoFar + k] = vi;
+    }
+    cornersSoFar += static_cast<std::uint64_t>(n);
+    std::uint8_t faces = cube::crossedFaces(c.config);
+    for (int f = 0; f < 6; ++f)
+      c.faceCoefficient[f] = ((faces >> f) & 1) ? r.getFinite("side coefficient") : 0.0;
+    c.central = r.getFinite("central coefficient");
+  }
+  if (cornersSoFar != numCorners) r.fail("corner count does not match the cells");
+  std::size_t bodyEnd = r.pos();
+  auto stored = r.get<std::uint32_t>("checksum");
+  if (r.remaining() != 0) r.fail(std::to_string(r.remaining()) + " unexpected bytes after the checksum");
+  if (stored != crc(data, bodyEnd)) r.fail("checksum mismatch");
+  return m;
+}
+
+std::size_t writeModel(const Model& model, const std::string& path) {
+  std::vector<std::uint8_t> bytes = serializeModel(model);
+  return writeFileAtomically(path, [&](std::FILE* f) { writeBytes(f, bytes.data(), bytes.size()); });
+}
+
+Model readModel(const std::string& path) {
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  if (!in) throw Error(path + ": cannot open model file");
+  std::streamoff size = in.tellg();
+  if (size < 0) throw Error(path + ": cannot read model file");
+  std::vector<std::uint8_t> bytes(static_cast<std::size_t>(size));
+  in.seekg(0);
+  if (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), size)) throw Error(path + ": read failed");
+  return parseModel(bytes.data(), bytes.size(), path);
+}
+
+}  // namespace cip

@@ -1,0 +1,154 @@
+/// @file ray_patch.h
+/// @brief Exact first intersection of a ray with a corner patch, in cell-local coordinates.
+///
+/// Along a ray x(t) = origin + t * direction every factor of a patch term (a corner plane S_c or a face plane
+/// B_f) is linear in t, so the patch restricted to the ray is a sum of products of powers of linear functions
+/// of t. The root finder never expands this into monomials: on an interval [a,b] it builds the Bernstein
+/// coefficients of every term directly from the factors' end values, elevates lower-degree terms, adds them,
+/// and counts sign changes (variation diminishing: the number of roots in the open interval is at most the
+/// number of sign changes).
+///  - no sign change: no root inside; a zero end coefficient (the value at an end) is itself a root;
+///  - one sign change with non-zero end values of opposite sign: exactly one root, refined by safeguarded
+///  Newton /
+///    bisection evaluated in factored form;
+///  - otherwise: split at the midpoint and search the left half first, recomputing both halves from the
+///  factors.
+/// Where subdivision reaches the depth limit without separating roots (tangent grazes, double or tightly
+/// clustered roots, or a polynomial that stays within rounding of zero), the interval holds a root (a
+/// "touch") if the value at its midpoint or one of its ends is within the rounding bound of the factored
+/// evaluation, otherwise it has none. See docs/raycast.md for the reasoning behind each case.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <optional>
+
+#include "cip/patch/corner_patch.h"
+
+namespace cip {
+
+/// A linear function of the ray parameter: value(t) = offset + slope * t.
+struct LinearFactor {
+  double offset = 0;
+  double slope = 0;
+  double operator()(double t) const { return offset + slope * t; }
+};
+
+/// A univariate polynomial in the ray parameter t, kept as a sum of terms
+/// coefficient * prod_i factor_i(t)^power_i over a shared table of linear factors. Fixed capacity, no
+/// allocation.
+class RayPolynomial {
+ public:
+  static constexpr int kMaxFactors = 32;      ///< distinct linear factors
+  static constexpr int kMaxTerms = 24;        ///< product terms
+  static constexpr int kMaxTermFactors = 24;  ///< distinct factors in one term
+  static constexpr int kMaxDegree = 32;       ///< degree of one term (sum of its powers)
+
+  /// Adds a linear factor to the table; returns its index. Throws std::length_error when full.
+  int addFactor(const LinearFactor& factor);
+  /// Starts a new term `coefficient * 1`; returns its index. Throws std::length_error when full.
+  int addTerm(double coefficient);
+  /// Multiplies term `term` by factor(t)^power (power >= 1). Throws std::length_error beyond the capacities.
+  void multiplyTerm(int term, int factor, int power = 1);
+
+  int numTerms() const { return numTerms_; }
+  int numFactors() const { return numFactors_; }
+  const LinearFactor& factor(int i) const { return factors_[i]; }
+  /// Largest term degree (an upper bound of the true degree: leading coefficients may cancel).
+  int degree() const;
+
+  /// Value at t, evaluated in factored form.
+  double value(double t) const;
+  /// Value and first derivative at t, evaluated in factored form (product rule, forward accumulation).
+  void valueAndDerivative(double t, double& value, double& derivative) const;
+  /// Bound of the rounding error of value(t): a small multiple of machine epsilon times
+  /// sum |coefficient| * prod |factor(t)|^power. A value below it cannot be told apart from zero.
+  double roundingBound(double t) const;
+
+  /// Bernstein coefficients on [a,b] (degree = degree()), built from the factors' end values; returns the
+  /// degree. Coefficient 0 is value(a) and coefficient degree is value(b), each computed as in value().
+  int bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const;
+
+ private:
+  struct Term {
+    double coefficient = 0;
+    int count = 0;
+    int degree = 0;
+    std::array<std::uint8_t, kMaxTermFactors> factor{};
+    std::array<std::uint8_t, kMaxTermFactors> power{};
+  };
+  std::array<LinearFactor, kMaxFactors> factors_{};
+  std::array<Term, kMaxTerms> terms_{};
+  int numFactors_ = 0;
+  int numTerms_ = 0;
+};
+
+/// Limits of the root search.
+struct RootSearchOptions {
+  /// Subdivision stops when an interval is narrower than this fraction of the searched interval's width (or a
+  /// few units in the last place of t, whichever is larger).
+  double minRelativeWidth = 1e-15;
+  /// Maximum number of intervals examined in one search; when exceeded the search reports no root.
+  int maxIntervals = 4096;
+  /// Newton / bisection iterations for one bracketed root.
+  int maxRefineIterations = 200;
+  /// intersectRayPatch only: report only zeros where the polynomial changes sign (see firstCrossing).
+  bool crossingsOnly = false;
+};
+
+/// Counters of one or more searches (add them up across calls; not thread-safe, keep one per thread).
+struct RootSearchStats {
+  std::int64_t searches = 0;
+  std::int64_t intervals = 0;        ///< Bernstein intervals examined
+  std::int64_t refinements = 0;      ///< bracketed roots refined
+  std::int64_t touches = 0;          ///< roots accepted at the depth limit (tangent grazes, multiple roots)
+  std::int64_t budgetExhausted = 0;  ///< searches that hit maxIntervals
+};
+
+/// How a root was found.
+enum class RootKind : std::uint8_t {
+  Bracketed = 0,  ///< single sign change, refined to a few ulps
+  EndPoint = 1,   ///< value exactly zero at an interval end
+  Touch = 2,  ///< depth limit reached; |value| within rounding (tangent graze, multiple or clustered roots)
+};
+
+struct Root {
+  double t = 0;
+  RootKind kind = RootKind::Bracketed;
+};
+
+/// First root of `p` in the closed interval [t0, t1] (t0 <= t1), or nothing. Deterministic.
+std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1,
+                              const RootSearchOptions& options = {}, RootSearchStats* stats = nullptr);
+
+/// First zero of `p` in [t0, t1] at which p changes sign: like firstRoot, but a zero found at an interval end
+/// or as a touch is accepted only if p(t - e) and p(t + e) are non-zero with opposite signs, e = 1e-9 (t1 -
+/// t0) (evaluated beyond [t0, t1] when t is at an end); otherwise the search resumes after t + e.
+/// Even-multiplicity zeros are skipped: tangent grazes, and the zeros every corner patch has at the cube
+/// vertices and along the edges shared by two bounding planes that no corner lies on (each term has a squared
+/// bounding plane vanishing there).
+std::optional<Root> firstCrossing(const RayPolynomial& p, double t0, double t1,
+                                  const RootSearchOptions& options = {}, RootSearchStats* stats = nullptr);
+
+/// The patch restricted to the ray origin + t * direction (cell-local coordinates; t in units of
+/// |direction|): one factor per face plane of the patch and per corner plane used, one term per patch term.
+RayPolynomial rayPolynomial(const CornerPatch& patch, const Vec3& origin, const Vec3& direction);
+
+/// Default enlargement of the cell box used by clipRayToCell (cell-local units): a root on a face shared by
+/// two cells lies strictly inside both cells' intervals, so neither misses it through rounding of the clip.
+constexpr double kCellClipPad = 1e-9;
+
+/// Clips the ray origin + t * direction (cell-local coordinates) with t in [tMin, tMax] to the box
+/// [-pad, 1 + pad]^3. Returns false when the clipped interval is empty; otherwise sets [t0, t1].
+/// Components of `direction` that are zero are handled (the ray is inside the slab or misses it).
+bool clipRayToCell(const Vec3& origin, const Vec3& direction, double tMin, double tMax, double& t0,
+                   double& t1, double pad = kCellClipPad);
+
+/// The first intersection of the ray origin + t * direction (cell-local coordinates of the patch's cell) with
+/// the patch's zero set, with t in [tMin, tMax] clipped to the padded cell box. Internally the ray is
+/// re-based at the clipped entry point so the root finder works on [0, t1 - t0]. Returns the ray parameter t
+/// (same units as tMin).
+std::optional<Root> intersectRayPatch(const CornerPatch& patch, const Vec3& origin, const Vec3& direction,
+                                      double tMin, double tMax, const RootSearchOptions& options = {},
+                                      RootSearchStats* stats = nullptr, double pad = kCellClipPad);
+
+}  // namespace cip

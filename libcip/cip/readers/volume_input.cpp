@@ -1,0 +1,221 @@
+#include "cip/readers/volume_input.h"
+
+#include <sys/stat.h>
+#include <zlib.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstring>
+#include <limits>
+
+#include "cip/core/error.h"
+
+namespace cip {
+
+std::string baseName(const std::string& path) {
+  std::size_t slash = path.find_last_of('/');
+  return slash == std::string::npos ? path : path.substr(slash + 1);
+}
+
+std::string describeDenseFile(const std::string& path, const std::string& format, SampleType type,
+                              const std::array<std::int64_t, 3>& dims) {
+  return baseName(path) + " (" + format + " " + toString(type) + " " + std::to_string(dims[0]) + "x" +
+         std::to_string(dims[1]) + "x" + std::to_string(dims[2]) + ")";
+}
+
+namespace {
+
+constexpr std::size_t kSlabBytes = std::size_t(4) << 20;
+constexpr std::size_t kInputChunk = std::size_t(256) << 10;
+
+std::FILE* openAt(const std::string& path, std::uint64_t offset) {
+  fileSizeOf(path);  // clear error for missing files and directories
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) throw Error(path + ": cannot open: " + std::strerror(errno));
+  if (offset > 0 && ::fseeko(f, static_cast<off_t>(offset), SEEK_SET) != 0) {
+    std::string reason = std::strerror(errno);
+    std::fclose(f);
+    throw Error(path + ": cannot seek to byte " + std::to_string(offset) + ": " + reason);
+  }
+  return f;
+}
+
+}  // namespace
+
+std::uint64_t fileSizeOf(const std::string& path) {
+  struct stat st;
+  if (::stat(path.c_str(), &st) != 0) throw Error(path + ": cannot open: " + std::strerror(errno));
+  if (!S_ISREG(st.st_mode)) throw Error(path + ": cannot open: not a regular file");
+  return static_cast<std::uint64_t>(st.st_size);
+}
+
+bool endsWithNoCase(const std::string& path, const std::string& suffix) {
+  if (path.size() < suffix.size()) return false;
+  return std::equal(suffix.begin(), suffix.end(), path.end() - static_cast<std::ptrdiff_t>(suffix.size()),
+                    [](char a, char b) {
+                      return std::tolower(static_cast<unsigned char>(a)) ==
+                             std::tolower(static_cast<unsigned char>(b));
+                    });
+}
+
+std::uint64_t ByteSource::skip(std::uint64_t n) {
+  std::vector<unsigned char> buffer(static_cast<std::size_t>(std::min<std::uint64_t>(n, kSlabBytes)));
+  std::uint64_t done = 0;
+  while (done < n) {
+    std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(n - done, buffer.size()));
+    std::size_t got = read(buffer.data(), want);
+    done += got;
+    if (got < want) break;
+  }
+  return done;
+}
+
+void ByteSource::readExactly(void* buffer, std::size_t n, const std::string& what) {
+  std::size_t got = read(buffer, n);
+  if (got < n) {
+    throw Error(path_ + ": " + what + " ends after " + std::to_string(got) + " of " + std::to_string(n) +
+                " bytes");
+  }
+}
+
+void ByteSource::expectEnd(const std::string& what) {
+  unsigned char extra;
+  std::uint64_t declared = position_;
+  if (read(&extra, 1) != 0) {
+    throw Error(path_ + ": " + what + " continues past its declared size of " + std::to_string(declared) +
+                " bytes");
+  }
+}
+
+FileByteSource::FileByteSource(const std::string& path, std::uint64_t offset)
+    : ByteSource(path), file_(openAt(path, offset)) {}
+
+FileByteSource::~FileByteSource() {
+  if (file_) std::fclose(file_);
+}
+
+std::size_t FileByteSource::read(void* buffer, std::size_t n) {
+  std::size_t got = std::fread(buffer, 1, n, file_);
+  if (got < n && std::ferror(file_)) throw Error(path_ + ": read error: " + std::strerror(errno));
+  position_ += got;
+  return got;
+}
+
+GzipByteSource::GzipByteSource(const std::string& path, std::uint64_t offset) : ByteSource(path) {
+  file_ = openAt(path, offset);
+  auto* zs = new z_stream{};
+  // 15 + 32: maximum window, and accept either a gzip or a zlib header.
+  if (inflateInit2(zs, 15 + 32) != Z_OK) {
+    delete zs;
+    std::fclose(file_);
+    throw Error(path + ": cannot initialise zlib");
+  }
+  stream_ = zs;
+  input_.resize(kInputChunk);
+  zs->next_in = input_.data();
+  zs->avail_in = 0;
+}
+
+GzipByteSource::~GzipByteSource() {
+  auto* zs = static_cast<z_stream*>(stream_);
+  inflateEnd(zs);
+  delete zs;
+  if (file_) std::fclose(file_);
+}
+
+bool GzipByteSource::refill() {
+  auto* zs = static_cast<z_stream*>(stream_);
+  if (inputEnd_) return false;
+  // Keep unread input at the front, append fresh bytes behind it.
+  std::size_t keep = zs->avail_in;
+  if (keep > 0 && zs->next_in != input_.data()) std::memmove(input_.data(), zs->next_in, keep);
+  std::size_t got = std::fread(input_.data() + keep, 1, input_.size() - keep, file_);
+  if (got < input_.size() - keep) {
+    if (std::ferror(file_)) throw Error(path_ + ": read error: " + std::strerror(errno));
+    inputEnd_ = true;
+  }
+  zs->next_in = input_.data();
+  zs->avail_in = static_cast<uInt>(keep + got);
+  return got > 0;
+}
+
+std::size_t GzipByteSource::read(void* buffer, std::size_t n) {
+  auto* zs = static_cast<z_stream*>(stream_);
+  auto* out = static_cast<unsigned char*>(buffer);
+  std::size_t done = 0;
+  while (done < n && !streamEnd_) {
+    if (zs->avail_in == 0) refill();
+    std::size_t want = std::min<std::size_t>(n - done, std::size_t(1) << 30);
+    zs->next_out = out + done;
+    zs->avail_out = static_cast<uInt>(want);
+    uInt inBefore = zs->avail_in;
+    int ret = inflate(zs, Z_NO_FLUSH);
+    std::size_t produced = want - zs->avail_out;
+    done += produced;
+    if (ret == Z_STREAM_END) {
+      // Another gzip member may follow (concatenated .gz files); anything else after the stream is ignored.
+      if (zs->avail_in < 2) refill();
+      if (zs->avail_in >= 2 && zs->next_in[0] == 0x1f && zs->next_in[1] == 0x8b) {
+        inflateReset(zs);
+      } else {
+        streamEnd_ = true;
+      }
+      continue;
+    }
+    if (ret == Z_OK || ret == Z_BUF_ERROR) {
+      // Without progress, inflate needs more input; at the end of the file the data is truncated.
+      if (produced == 0 && zs->avail_in == inBefore && !refill()) {
+        throw Error(path_ + ": compressed data is truncated (ends after " + std::to_string(position_ + done) +
+                    " inflated bytes)");
+      }
+      continue;
+    }
+    std::string reason = zs->msg ? zs->msg : "zlib error " + std::to_string(ret);
+    throw Error(path_ + ": corrupt compressed data: " + reason);
+  }
+  position_ += done;
+  return done;
+}
+
+std::int64_t checkVolumeDims(const std::string& path, const std::array<std::int64_t, 3>& dims,
+                             std::size_t bytesPerSample, std::size_t maxBytes) {
+  for (auto d : dims) {
+    if (d < 1) {
+      throw Error(path + ": invalid volume dimensions " + std::to_string(dims[0]) + "x" +
+                  std::to_string(dims[1]) + "x" + std::to_string(dims[2]) +
+                  " (every extent must be at least 1)");
+    }
+  }
+  std::int64_t count = 0;
+  try {
+    count = checkedVolumeSize(dims, sizeof(double), maxBytes);
+    checkedVolumeSize(dims, std::max<std::size_t>(bytesPerSample, 1),
+                      std::numeric_limits<std::size_t>::max());
+  } catch (const Error& e) {
+    throw Error(path + ": " + e.what());
+  }
+  return count;
+}
+
+void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGrid& grid) {
+  const std::size_t size = sampleSize(type);
+  const std::size_t total = grid.values.size();
+  const std::size_t perSlab = std::max<std::size_t>(1, kSlabBytes / size);
+  std::vector<unsigned char> slab(std::min(total, perSlab) * size);
+  std::size_t done = 0;
+  while (done < total) {
+    std::size_t count = std::min(total - done, perSlab);
+    std::size_t got = source.read(slab.data(), count * size);
+    if (got < count * size) {
+      std::uint64_t have = static_cast<std::uint64_t>(done) * size + got;
+      std::uint64_t need = static_cast<std::uint64_t>(total) * size;
+      throw Error(source.path() + ": data ends after " + std::to_string(have) + " of " +
+                  std::to_string(need) + " bytes (" + std::to_string(need - have) + " bytes short)");
+    }
+    decodeSamples(slab.data(), count, type, endian, grid.values.data() + done);
+    done += count;
+  }
+}
+
+}  // namespace cip

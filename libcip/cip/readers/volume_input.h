@@ -1,0 +1,100 @@
+/// @file volume_input.h
+/// @brief Plumbing shared by the volume readers: files opened with clear errors, sequential byte sources over
+/// plain or gzip/zlib-compressed data, checked volume sizes, and streaming sample decoding into a DenseGrid.
+///
+/// Samples are read in slabs of a few MiB and decoded straight into the grid's double values, so a reader
+/// never holds a second full copy of the volume. Compressed data is inflated through a fixed-size buffer;
+/// readers ask for exactly the declared number of bytes and then check with expectEnd() that nothing follows,
+/// which inflates at most one more byte: a stream that expands beyond its declared size is stopped there.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <cstdio>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "cip/volume/dense_grid.h"
+#include "cip/volume/sample_type.h"
+
+namespace cip {
+
+/// Size of a regular file in bytes; throws cip::Error "<path>: cannot open: <reason>" if it is missing or not
+/// a file.
+std::uint64_t fileSizeOf(const std::string& path);
+
+/// The file name part of a path (after the last '/').
+std::string baseName(const std::string& path);
+
+/// Description of a dense volume file for the model's source field, e.g. "tooth.nhdr (NRRD uint8
+/// 103x94x161)".
+std::string describeDenseFile(const std::string& path, const std::string& format, SampleType type,
+                              const std::array<std::int64_t, 3>& dims);
+
+/// True when `path` ends with `suffix`, ignoring ASCII case.
+bool endsWithNoCase(const std::string& path, const std::string& suffix);
+
+/// Sequential reader of bytes; throws cip::Error (message starts with the path) on I/O or decoding failure.
+class ByteSource {
+ public:
+  explicit ByteSource(std::string path) : path_(std::move(path)) {}
+  virtual ~ByteSource() = default;
+  ByteSource(const ByteSource&) = delete;
+  ByteSource& operator=(const ByteSource&) = delete;
+
+  /// Reads up to `n` bytes into `buffer`; returns fewer only at the end of the data.
+  virtual std::size_t read(void* buffer, std::size_t n) = 0;
+  /// Skips up to `n` bytes; returns the number skipped (fewer only at the end of the data).
+  std::uint64_t skip(std::uint64_t n);
+  /// Reads exactly `n` bytes or throws "<path>: <what> ends after X of N bytes".
+  void readExactly(void* buffer, std::size_t n, const std::string& what);
+  /// Throws "<path>: <what> continues past its declared size of N bytes" if any byte is left.
+  void expectEnd(const std::string& what);
+  /// Bytes delivered (read or skipped) so far.
+  std::uint64_t position() const { return position_; }
+  const std::string& path() const { return path_; }
+
+ protected:
+  std::uint64_t position_ = 0;
+  std::string path_;
+};
+
+/// Bytes of a file from a given offset, as stored.
+class FileByteSource : public ByteSource {
+ public:
+  FileByteSource(const std::string& path, std::uint64_t offset);
+  ~FileByteSource() override;
+  std::size_t read(void* buffer, std::size_t n) override;
+
+ private:
+  std::FILE* file_ = nullptr;
+};
+
+/// Inflated bytes of gzip or zlib data (detected from its header) stored in a file from a given offset.
+/// Concatenated gzip members are read as one stream. Corrupt or truncated data throws cip::Error.
+class GzipByteSource : public ByteSource {
+ public:
+  GzipByteSource(const std::string& path, std::uint64_t offset);
+  ~GzipByteSource() override;
+  std::size_t read(void* buffer, std::size_t n) override;
+
+ private:
+  bool refill();
+  std::FILE* file_ = nullptr;
+  void* stream_ = nullptr;  ///< z_stream, kept opaque so zlib stays out of this header
+  std::vector<unsigned char> input_;
+  bool inputEnd_ = false;
+  bool streamEnd_ = false;
+};
+
+/// Checks the dims of a volume before anything is allocated: every extent >= 1, the point count and its
+/// double storage fit 64 bits and `maxBytes`, and the stored data (count * bytesPerSample) fits 64 bits.
+/// Returns the number of points. Errors are "<path>: ..." and name the dims and the size.
+std::int64_t checkVolumeDims(const std::string& path, const std::array<std::int64_t, 3>& dims,
+                             std::size_t bytesPerSample, std::size_t maxBytes);
+
+/// Fills the already allocated `grid.values` with samples read from `source`, x fastest, in slabs of a few
+/// MiB. Throws "<path>: data ends after X of N bytes" when the source runs out early.
+void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGrid& grid);
+
+}  // namespace cip

@@ -1,0 +1,70 @@
+#include "cip/readers/volume_reader.h"
+
+#include <sstream>
+
+#include "cip/core/error.h"
+#include "cip/readers/nifti_reader.h"
+#include "cip/readers/nrrd_reader.h"
+#include "cip/readers/vdb_reader.h"
+#include "cip/readers/volume_input.h"
+
+namespace cip {
+
+const char* toString(VolumeFormat format) {
+  switch (format) {
+    case VolumeFormat::Raw:
+      return "raw";
+    case VolumeFormat::Nrrd:
+      return "NRRD";
+    case VolumeFormat::Nifti:
+      return "NIfTI";
+    case VolumeFormat::Vdb:
+      return "VDB";
+  }
+  return "unknown";
+}
+
+VolumeFormat volumeFormatOf(const std::string& path) {
+  if (endsWithNoCase(path, ".nrrd") || endsWithNoCase(path, ".nhdr")) return VolumeFormat::Nrrd;
+  if (endsWithNoCase(path, ".nii") || endsWithNoCase(path, ".nii.gz")) return VolumeFormat::Nifti;
+  if (endsWithNoCase(path, ".vdb")) return VolumeFormat::Vdb;
+  return VolumeFormat::Raw;
+}
+
+SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options) {
+  switch (volumeFormatOf(path)) {
+    case VolumeFormat::Nrrd:
+      return fromDense(readNrrd(path, options.maxBytes));
+    case VolumeFormat::Nifti:
+      return fromDense(readNifti(path, options.maxBytes));
+    case VolumeFormat::Vdb: {
+      VdbReadOptions vdb;
+      vdb.gridName = options.vdbGrid;
+      vdb.brickCells = options.brickCells;
+      vdb.apron = options.apron;
+      vdb.maxBytes = options.maxBytes;
+      return readVdb(path, vdb);
+    }
+    case VolumeFormat::Raw:
+      break;
+  }
+  if (!options.raw) {
+    throw Error(path +
+                ": not a .nrrd, .nhdr, .nii, .nii.gz or .vdb file; reading it as raw data needs its dims "
+                "and sample type");
+  }
+  return fromDense(readRaw(path, *options.raw, options.maxBytes));
+}
+
+std::string describeVolume(const SparseVolume& volume) {
+  std::ostringstream s;
+  const auto& g = volume.geometry;
+  s << volume.description;
+  if (!volume.dense()) s << ", grid " << g.dims[0] << "x" << g.dims[1] << "x" << g.dims[2];
+  s << ", spacing " << g.spacing[0] << " " << g.spacing[1] << " " << g.spacing[2];
+  if (!volume.dense())
+    s << ", " << volume.bricks.size() << (volume.bricks.size() == 1 ? " brick" : " bricks");
+  return s.str();
+}
+
+}  // namespace cip

@@ -1,0 +1,41 @@
+/// @file volume_reader.h
+/// @brief One entry point for every volume format: picks the reader from the file name and returns a
+/// SparseVolume that buildModel takes directly (buildModel(volume.geometry, volume.bricks, options,
+/// volume.description)).
+///
+/// By name (case-insensitive): .nrrd/.nhdr -> NRRD, .nii/.nii.gz -> NIfTI-1, .vdb -> OpenVDB (sparse bricks),
+/// anything else -> raw, which needs a RawFormat (dims, sample type, ...). A known extension always wins over
+/// a RawFormat. Dense formats come back as one brick owning every cell (fromDense).
+#pragma once
+#include <optional>
+#include <string>
+
+#include "cip/readers/raw_reader.h"
+#include "cip/volume/sparse_volume.h"
+
+namespace cip {
+
+enum class VolumeFormat : std::uint8_t { Raw, Nrrd, Nifti, Vdb };
+const char* toString(VolumeFormat format);
+
+/// The format implied by the file name (Raw for unknown extensions).
+VolumeFormat volumeFormatOf(const std::string& path);
+
+struct VolumeReadOptions {
+  std::optional<RawFormat> raw;  ///< layout of a raw file (required when the name has no known extension)
+  std::string vdbGrid;           ///< VDB grid name; empty = first float/double grid
+  int brickCells = 32;           ///< VDB brick size in cells per side
+  int apron = 1;                 ///< VDB points kept around each brick (VdbReadOptions::apron)
+  std::size_t maxBytes = DenseGrid::defaultMaxBytes();  ///< limit on the samples held, as doubles
+};
+
+/// Reads any supported volume. Throws cip::Error (message starting with the path) on any failure; a raw file
+/// without options.raw is an error that says which parameters are missing.
+SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options = {});
+
+/// Short description for statistics, e.g. "tooth.nhdr (NRRD uint8 103x94x161), spacing 1 1 1" or, for VDB,
+/// "sphere.vdb grid ls_sphere (VDB float level set, ...), grid 127x127x127, spacing 0.05 0.05 0.05, 125
+/// bricks".
+std::string describeVolume(const SparseVolume& volume);
+
+}  // namespace cip

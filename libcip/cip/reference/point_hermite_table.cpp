@@ -1,0 +1,124 @@
+#include "cip/reference/point_hermite_table.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <array>
+
+#include "cip/core/error.h"
+
+namespace cip {
+
+namespace {
+
+/// Tiles of PointHermiteTable, in grid points per axis: long along x (lines of the passes), a few reaches
+/// along y and z so that the box grown by the reach is not mostly margin.
+constexpr std::array<std::int64_t, 3> kTile{32, 16, 16};
+
+}  // namespace
+
+PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells,
+                                     Reconstruction kind)
+    : grid_(&grid) {
+  const auto& dims = grid.geometry.dims;
+  const std::int64_t dx = dims[0], dxy = dims[0] * dims[1];
+  present_.assign(static_cast<std::size_t>((grid.geometry.pointCount() + 63) / 64), 0);
+  auto mark = [&](std::int64_t index) {
+    present_[static_cast<std::size_t>(index >> 6)] |= std::uint64_t(1) << (index & 63);
+  };
+  for (std::int64_t c : cells) {
+    for (std::int64_t corner : {c, c + dx, c + dxy, c + dx + dxy}) {
+      mark(corner);
+      mark(corner + 1);
+    }
+  }
+  before_.resize(present_.size());
+  std::uint64_t total = 0;
+  for (std::size_t w = 0; w < present_.size(); ++w) {
+    before_[w] = static_cast<std::uint32_t>(total);
+    total += static_cast<std::uint64_t>(__builtin_popcountll(present_[w]));
+  }
+  if (total > 0xFFFFFFFFu) throw Error("too many grid points for one reference table");
+  data_.resize(static_cast<std::size_t>(total));
+
+  // The points of one tile: their box-local positions over the tile's bounding box of points.
+  std::array<std::int64_t, 3> tiles;
+  for (int a = 0; a < 3; ++a) tiles[a] = (dims[a] + kTile[a] - 1) / kTile[a];
+  tbb::parallel_for(std::int64_t(0), tiles[0] * tiles[1] * tiles[2], [&](std::int64_t t) {
+    const std::array<std::int64_t, 3> begin{(t % tiles[0]) * kTile[0], (t / tiles[0] % tiles[1]) * kTile[1],
+                                            t / (tiles[0] * tiles[1]) * kTile[2]};
+    std::array<std::int64_t, 3> end, lo = dims, hi{-1, -1, -1};
+    for (int a = 0; a < 3; ++a) end[a] = std::min(begin[a] + kTile[a], dims[a]);
+    thread_local std::vector<std::array<std::int64_t, 3>> points;
+    points.clear();
+    for (std::int64_t k = begin[2]; k < end[2]; ++k)
+      for (std::int64_t j = begin[1]; j < end[1]; ++j) {
+        const std::int64_t row = grid.index(0, j, k);
+        for (std::int64_t i = begin[0]; i < end[0]; ++i) {
+          const std::int64_t index = row + i;
+          const std::uint64_t word = present_[static_cast<std::size_t>(index >> 6)];
+          if (word == 0) {  // skip the rest of the word
+            i += 63 - (index & 63);
+            continue;
+          }
+          if (!((word >> (index & 63)) & 1)) continue;
+          points.push_back({i, j, k});
+          lo = {std::min(lo[0], i), std::min(lo[1], j), std::min(lo[2], k)};
+          hi = {std::max(hi[0], i), std::max(hi[1], j), std::max(hi[2], k)};
+        }
+      }
+    if (points.empty()) return;
+    thread_local std::vector<std::array<int, 3>> local;
+    thread_local std::vector<PointHermite> values;
+    local.resize(points.size());
+    values.resize(points.size());
+    for (std::size_t n = 0; n < points.size(); ++n)
+      for (int a = 0; a < 3; ++a) local[n][a] = static_cast<int>(points[n][a] - lo[a]);
+    hermiteInBox(grid, kind, lo,
+                 {static_cast<int>(hi[0] - lo[0] + 1), static_cast<int>(hi[1] - lo[1] + 1),
+                  static_cast<int>(hi[2] - lo[2] + 1)},
+                 local.data(), local.size(), values.data());
+    for (std::size_t n = 0; n < points.size(); ++n)
+      data_[rank(grid.index(points[n][0], points[n][1], points[n][2]))] = values[n];
+  });
+}
+
+bool PointHermiteTable::holds(std::int64_t index) const {
+  const auto w = static_cast<std::size_t>(index >> 6);
+  return index >= 0 && w < present_.size() && (present_[w] >> (index & 63)) & 1;
+}
+
+std::size_t PointHermiteTable::rank(std::int64_t index) const {
+  const std::size_t w = static_cast<std::size_t>(index >> 6);
+  const std::uint64_t below = (std::uint64_t(1) << (index & 63)) - 1;
+  return before_[w] + static_cast<std::size_t>(__builtin_popcountll(present_[w] & below));
+}
+
+const PointHermite& PointHermiteTable::at(std::int64_t index) const {
+  if (!holds(index)) throw Error("grid point not in the reference table");
+  return data_[rank(index)];
+}
+
+void PointHermiteTable::setReference(const std::array<std::int64_t, 3>& cell, double isovalue,
+                                     CellReference& ref) const {
+  ref.field = nullptr;
+  ref.geometry = nullptr;
+  ref.origin = Vec3::Zero();
+  ref.isovalue = isovalue;
+  ref.metric = Vec3::Ones();
+  const std::int64_t base = grid_->index(cell[0], cell[1], cell[2]);
+  const std::int64_t dx = grid_->geometry.dims[0], dxy = dx * grid_->geometry.dims[1];
+  const std::int64_t rows[4] = {base, base + dx, base + dxy, base + dx + dxy};
+  bool held = true;
+  for (std::int64_t row : rows) held = held && holds(row) && holds(row + 1);
+  if (!held) throw Error("cell not in the reference table");
+  std::array<const PointHermite*, 8> corners;
+  for (int r = 0; r < 4; ++r) {
+    const std::size_t n = rank(rows[r]);  // x + 1 is the next point held
+    corners[static_cast<std::size_t>(2 * r)] = &data_[n];
+    corners[static_cast<std::size_t>(2 * r + 1)] = &data_[n + 1];
+  }
+  cellHermite(corners, ref.hermite);
+}
+
+}  // namespace cip

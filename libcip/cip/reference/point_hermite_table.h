@@ -1,0 +1,42 @@
+/// @file point_hermite_table.h
+/// @brief The reference's Hermite data at every grid point a model needs, computed once and shared by the
+/// cells and edges around each point (point_hermite.h computes them).
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "cip/reference/point_hermite.h"
+#include "cip/reference/tricubic_reference.h"
+#include "cip/volume/dense_grid.h"
+
+namespace cip {
+
+/// The reference's data at a set of points of one grid, for a whole model: computed in parallel over tiles of
+/// the grid (each tile over the bounding box of its points), looked up by a rank over a bit per grid point
+/// (a bit and a half per grid point besides the data).
+class PointHermiteTable {
+ public:
+  PointHermiteTable() = default;
+  /// The data at the corners of the given cells (each its lowest point's grid.index; the cell inside the
+  /// grid). The grid must outlive the table.
+  PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells, Reconstruction kind);
+
+  /// The data at grid point `index` (grid.index), which must be a corner of one of the table's cells (throws
+  /// Error otherwise).
+  const PointHermite& at(std::int64_t index) const;
+  /// The reference of one of the table's cells, given by its lowest point, written into `ref` as
+  /// setTricubicReference does (every member set; metric to ones). Throws Error for a cell not in the table.
+  void setReference(const std::array<std::int64_t, 3>& cell, double isovalue, CellReference& ref) const;
+  std::size_t size() const { return data_.size(); }
+
+ private:
+  bool holds(std::int64_t index) const;
+  std::size_t rank(std::int64_t index) const;  ///< of a point held
+  const DenseGrid* grid_ = nullptr;
+  std::vector<std::uint64_t> present_;  ///< bit per grid point (grid.index order)
+  std::vector<std::uint32_t> before_;   ///< points present in the words before each word of present_
+  std::vector<PointHermite> data_;      ///< in grid.index order of the points present
+};
+
+}  // namespace cip

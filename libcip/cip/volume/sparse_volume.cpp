@@ -1,0 +1,64 @@
+#include "cip/volume/sparse_volume.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace cip {
+
+SparseVolume fromDense(DenseGrid grid) {
+  SparseVolume volume;
+  volume.geometry = grid.geometry;
+  volume.description = grid.description;
+  volume.grids.push_back(std::move(grid));
+  GridBrick brick;
+  brick.grid = &volume.grids.front();
+  for (int a = 0; a < 3; ++a) brick.cellEnd[a] = std::max<std::int64_t>(0, volume.geometry.dims[a] - 1);
+  volume.bricks.push_back(brick);
+  return volume;
+}
+
+const DenseGrid* SparseVolume::dense() const {
+  if (bricks.size() != 1 || grids.size() != 1) return nullptr;
+  const GridBrick& b = bricks.front();
+  for (int a = 0; a < 3; ++a) {
+    if (b.offset[a] != 0 || b.cellBegin[a] != 0 || b.grid->geometry.dims[a] != geometry.dims[a] ||
+        b.cellEnd[a] != std::max<std::int64_t>(0, geometry.dims[a] - 1)) {
+      return nullptr;
+    }
+  }
+  return b.grid;
+}
+
+std::int64_t SparseVolume::ownedCellCount() const {
+  std::int64_t n = 0;
+  for (const auto& b : bricks) {
+    std::int64_t c = 1;
+    for (int a = 0; a < 3; ++a) c *= std::max<std::int64_t>(0, b.cellEnd[a] - b.cellBegin[a]);
+    n += c;
+  }
+  return n;
+}
+
+std::pair<double, double> SparseVolume::range() const {
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (const auto& g : grids) {
+    auto r = g.range();
+    lo = std::min(lo, r.first);
+    hi = std::max(hi, r.second);
+  }
+  if (!dense() && std::isfinite(background)) {
+    lo = std::min(lo, background);
+    hi = std::max(hi, background);
+    if (isLevelSet) lo = std::min(lo, -background);  // inside a narrow band the tree holds -background
+  }
+  return {lo, hi};
+}
+
+std::size_t SparseVolume::sampleBytes() const {
+  std::size_t n = 0;
+  for (const auto& g : grids) n += g.values.size() * sizeof(double);
+  return n;
+}
+
+}  // namespace cip
