@@ -1,22 +1,10 @@
 /// @file ray_patch.h
 /// @brief Exact first intersection of a ray with a corner patch, in cell-local coordinates.
 ///
-/// Along a ray x(t) = origin + t * direction every factor of a patch term (a corner plane S_c or a face plane
-/// B_f) is linear in t, so the patch restricted to the ray is a sum of products of powers of linear functions
-/// of t. The root finder never expands this into monomials: on an interval [a,b] it builds the Bernstein
-/// coefficients of every term directly from the factors' end values, elevates lower-degree terms, adds them,
-/// and counts sign changes (variation diminishing: the number of roots in the open interval is at most the
-/// number of sign changes).
-///  - no sign change: no root inside; a zero end coefficient (the value at an end) is itself a root;
-///  - one sign change with non-zero end values of opposite sign: exactly one root, refined by safeguarded
-///  Newton /
-///    bisection evaluated in factored form;
-///  - otherwise: split at the midpoint and search the left half first, recomputing both halves from the
-///  factors.
-/// Where subdivision reaches the depth limit without separating roots (tangent grazes, double or tightly
-/// clustered roots, or a polynomial that stays within rounding of zero), the interval holds a root (a
-/// "touch") if the value at its midpoint or one of its ends is within the rounding bound of the factored
-/// evaluation, otherwise it has none. See docs/raycast.md for the reasoning behind each case.
+/// Along a ray every factor of a patch term is linear in t, so the restricted patch is searched in Bernstein
+/// form built directly from the factors on an interval (never expanded into monomials): sign changes bound
+/// the roots, one sign change is refined by safeguarded Newton/bisection in factored form, more are split,
+/// left half first. docs/raycast.md ("How rays meet patches") gives each case and its reasoning.
 #pragma once
 #include <array>
 #include <cstdint>

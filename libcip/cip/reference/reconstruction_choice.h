@@ -1,20 +1,11 @@
 /// @file reconstruction_choice.h
-/// @brief Reconstruction::Auto: the reference of sampled data chosen from how the samples near the isosurface
-/// behave at the finest scale the grid carries.
+/// @brief Reconstruction::Auto: the reference of sampled data chosen once per volume from how the samples
+/// near the isosurface behave at the finest scale the grid carries.
 ///
-/// `central8` (tricubic_reference.h) knows the normal of smooth, finely sampled data far better than
-/// `monotone`, but overshoots where the data change at the scale of the grid: next to steps (CT bone), at the
-/// clamped band of a narrow-band level set, and where the samples alias. A local test cannot tell those from
-/// a well-sampled crest (docs/method.md), so the choice is made once per volume from the spectrum of the
-/// samples near the surface, through the energy of their sixth differences over that of their fourth:
-///     R = sum (D6 s)^2 / sum (D4 s)^2,
-/// summed along all three axes at the lowest corner of every crossed cell. For samples of a sine of
-/// wavelength L samples, R = (2 sin(pi / L))^4, so R gives an effective wavelength
-///     L = pi / asin(R^(1/4) / 2)          (2 at R >= 16, the grid's Nyquist limit).
-/// Smooth fields have a spectrum that falls off towards the grid's Nyquist limit, and a long L; steps, kinks
-/// and aliased ripples keep energy up to that limit, and a short one. Measured (docs/method.md):
-/// Marschner-Lobb at N = 64 3.9 samples, at N = 32 2.5; headsq 2.7; the tooth 2.8; the OpenVDB level set 2.0;
-/// torus and gyroid at N = 32 4.6 and 16. Central8 is chosen from kCentral8Wavelength samples up.
+/// `central8` knows the normal of smooth, finely sampled data far better than `monotone` but overshoots at
+/// steps and on aliased data. The ratio of the energies of the samples' sixth and fourth differences near the
+/// surface gives an effective wavelength (a sampled sine of wavelength L gives exactly L); central8 is chosen
+/// from kCentral8Wavelength samples up. docs/method.md derives the estimate and measures it per volume.
 #pragma once
 #include <array>
 #include <cstdint>

@@ -1,29 +1,14 @@
 /// @file tricubic_reference.h
-/// @brief The reference field of sampled volumes: a tricubic Hermite interpolant of the samples, monotone
-/// (below) or with 8th-order central differences (Reconstruction::Central8); buildModel picks one per volume
-/// by default (Reconstruction::Auto, reconstruction_choice.h).
+/// @brief The reference field of sampled volumes: the tricubic Hermite interpolant of the samples, with
+/// derivatives at grid points from limited central differences (Reconstruction::Monotone) or 8th-order ones
+/// (Reconstruction::Central8).
 ///
-/// PatchMethod::Fitted places isovertices on, takes corner normals from, and checks signs against this field
-/// (patch_fitting.h); the fidelity measures use it as the true surface of real volumes.
-///
-/// It is the tensor-product cubic Hermite interpolant whose derivatives at each grid point come from central
-/// differences of the samples, like Catmull-Rom, except that a first derivative along an axis is limited
-/// (Hyman's filter for Fritsch–Carlson monotone interpolation): zero where the samples on either side of the
-/// point both lie above or both below it (a local extremum along that grid line), and at most three times the
-/// smaller of the two one-sided differences elsewhere. Along every grid line the interpolant is then monotone
-/// between consecutive samples, so it crosses the isovalue on a grid edge exactly when the edge's end samples
-/// straddle it: its sign structure on the cell edges is the marching-cubes configuration's. Catmull-Rom
-/// overshoots next to steep steps (CT data: bone next to soft tissue) and then adds sheets inside cells that
-/// no patch with the cell's configuration can follow. Mixed derivatives are central differences of the
-/// limited first derivatives. All grid-point data depend only on the samples around that point, so the field
-/// is C1 across cells; linear fields are reproduced exactly, also at the volume border, where samples are
-/// extended linearly by one point.
-///
-/// A second reconstruction, Reconstruction::Central8, takes every derivative (first and mixed) from 8th-order
-/// central differences of the samples (9 points per axis), with no limiter. On smooth, well-sampled data it
-/// knows the normal far better (Marschner-Lobb at N = 64: 1.25 degrees off the true normal at the true
-/// surface against 9.0 for the monotone one), but it overshoots next to steps and on aliased data, where the
-/// monotone one stays between the samples; docs/method.md has both measured.
+/// The fitted construction places isovertices on it, takes corner normals from it and checks signs against
+/// it (patch_fitting.h); the fidelity measures use it as the true surface of real volumes. Monotone is
+/// monotone along grid lines, so its edge crossings are the marching-cubes configuration's; Central8 follows
+/// smooth data far better but overshoots at steps. Both depend only on the samples around each grid point, so
+/// the field is C1 across cells and linear fields are exact. docs/method.md ("The reference of sampled
+/// volumes") has the details and measurements.
 #pragma once
 #include <array>
 #include <cstdint>
