@@ -328,12 +328,9 @@ class GridSelector : public openvdb::io::Archive {
 
 using BrickKey = std::array<std::int64_t, 3>;
 
-template <typename GridT>
-SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadOptions& options,
-                      const std::string& typeName) {
-  const std::string name = grid.getName();
-  // Placement: axis-aligned linear transform with positive scales.
-  const openvdb::math::Transform& xf = grid.transform();
+/// The voxel size of a grid's transform, which must be linear, axis-aligned and with positive scales.
+Vec3 axisAlignedSpacing(const std::string& path, const std::string& name,
+                        const openvdb::math::Transform& xf) {
   if (!xf.isLinear())
     throw Error(path + ": grid '" + name + "' has a non-linear (frustum) transform; not supported");
   const openvdb::math::Mat4d m = xf.baseMap()->getAffineMap()->getMat4();
@@ -351,38 +348,55 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
     }
     spacing[i] = m[i][i];
   }
+  return spacing;
+}
 
-  const openvdb::CoordBBox active = grid.evalActiveVoxelBoundingBox();
-  if (active.empty()) throw Error(path + ": grid '" + name + "' has no active voxels");
-  // Global grid: the active box plus one point on every side (all cells with an active corner lie inside).
+/// The global grid: the active box plus one point on every side (all cells with an active corner lie
+/// inside), as its lowest VDB coordinate and its dims. Its grid keys (point index * 3 + axis) must fit 64
+/// bits and each axis a model's 32-bit cell index.
+struct GlobalBox {
   std::array<std::int64_t, 3> lo, dims;
+};
+
+GlobalBox globalBox(const std::string& path, const std::string& name, const openvdb::CoordBBox& active) {
+  GlobalBox box;
   for (int a = 0; a < 3; ++a) {
-    lo[a] = static_cast<std::int64_t>(active.min()[a]) - 1;
-    dims[a] = static_cast<std::int64_t>(active.max()[a]) + 1 - lo[a] + 1;
+    box.lo[a] = static_cast<std::int64_t>(active.min()[a]) - 1;
+    box.dims[a] = static_cast<std::int64_t>(active.max()[a]) + 1 - box.lo[a] + 1;
   }
   try {
-    // Grid keys (point index * 3 + axis) must fit 64 bits.
-    checkedVolumeSize(dims, 3, std::numeric_limits<std::size_t>::max());
+    checkedVolumeSize(box.dims, 3, std::numeric_limits<std::size_t>::max());
   } catch (const Error& e) {
     throw Error(path + ": grid '" + name + "': " + e.what());
   }
   for (int a = 0; a < 3; ++a) {
-    if (dims[a] > (std::int64_t(1) << 32)) {
-      throw Error(path + ": grid '" + name + "' spans " + std::to_string(dims[a]) + " voxels on axis " +
+    if (box.dims[a] > (std::int64_t(1) << 32)) {
+      throw Error(path + ": grid '" + name + "' spans " + std::to_string(box.dims[a]) + " voxels on axis " +
                   std::to_string(a) + ", more than a model can index");
     }
   }
+  return box;
+}
 
-  const std::int64_t B = options.brickCells;
-  if (B < 1) throw Error(path + ": brick size must be at least 1 cell");
-  std::array<std::int64_t, 3> cells;
-  for (int a = 0; a < 3; ++a) cells[a] = dims[a] - 1;
+/// How the global grid's cells are cut into bricks: brick (x,y,z) owns the cells [x*B, (x+1)*B) along x (and
+/// so on), clipped to the grid, and holds an apron of up to `apron` points around them where the grid goes
+/// on.
+struct BrickLayout {
+  std::int64_t B;                     ///< cells per brick side
+  std::int64_t apron;                 ///< points around the owned cells
+  std::array<std::int64_t, 3> dims;   ///< of the global grid
+  std::array<std::int64_t, 3> cells;  ///< of the global grid (dims - 1)
 
-  if (options.apron < 1 || options.apron > 64) throw Error(path + ": brick apron must be 1 to 64 points");
-  const std::int64_t apron = options.apron;
-  // A brick's placement in the global grid: the cells it owns plus an apron of up to `apron` points where the
-  // grid goes on. Sets its dims and returns its point count.
-  auto place = [&](const BrickKey& k, GridBrick& brick, std::array<std::int64_t, 3>& bdims) {
+  BrickLayout(const std::string& path, const std::array<std::int64_t, 3>& globalDims,
+              const VdbReadOptions& options)
+      : B(options.brickCells), apron(options.apron), dims(globalDims) {
+    if (B < 1) throw Error(path + ": brick size must be at least 1 cell");
+    for (int a = 0; a < 3; ++a) cells[a] = dims[a] - 1;
+    if (options.apron < 1 || options.apron > 64) throw Error(path + ": brick apron must be 1 to 64 points");
+  }
+
+  /// Brick `k`'s placement in the global grid into `brick`, its dims into `bdims`; returns its point count.
+  std::uint64_t place(const BrickKey& k, GridBrick& brick, std::array<std::int64_t, 3>& bdims) const {
     for (int a = 0; a < 3; ++a) {
       std::int64_t c0 = k[a] * B, c1 = std::min(c0 + B, cells[a]);  // owned cells [c0, c1)
       std::int64_t apronLo = std::min(apron, c0);
@@ -393,29 +407,27 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
       bdims[a] = (c1 - c0) + 1 + apronLo + apronHi;
     }
     return static_cast<std::uint64_t>(bdims[0] * bdims[1] * bdims[2]);
-  };
-  // Bricks owning a cell with an active corner: an active point p (global) is a corner of cells p-1 and p per
-  // axis. Their samples are counted as they are found, and the search stops once they exceed the limit: a
-  // small file can hold active tiles that span more bricks than memory (a set entry per brick).
-  const std::uint64_t maxPoints = options.maxBytes / sizeof(double);
-  std::uint64_t totalPoints = 0;
-  std::set<BrickKey> keys;
-  auto add = [&](const BrickKey& k) {
-    GridBrick unused;
-    std::array<std::int64_t, 3> bdims;
-    if (keys.insert(k).second) totalPoints += place(k, unused, bdims);
-    return totalPoints <= maxPoints;
-  };
-  BrickKey last{-1, -1, -1};
-  auto addRange = [&](const std::array<std::int64_t, 3>& pmin, const std::array<std::int64_t, 3>& pmax) {
+  }
+};
+
+/// The bricks owning a cell with an active corner: an active point p (global) is a corner of cells p-1 and p
+/// per axis. Their samples are counted as they are found, and the search stops once they exceed the limit: a
+/// small file can hold active tiles that span more bricks than memory (a set entry per brick).
+class ActiveBricks {
+ public:
+  ActiveBricks(const BrickLayout& layout, std::uint64_t maxPoints) : layout_(layout), maxPoints_(maxPoints) {}
+
+  /// Adds the bricks of the cells with a corner in the box [pmin, pmax] of global points; false once the
+  /// bricks found hold more than the limit.
+  bool addRange(const std::array<std::int64_t, 3>& pmin, const std::array<std::int64_t, 3>& pmax) {
     std::array<std::int64_t, 3> b0, b1;
     for (int a = 0; a < 3; ++a) {
-      b0[a] = std::max<std::int64_t>(pmin[a] - 1, 0) / B;
-      b1[a] = std::min<std::int64_t>(pmax[a], cells[a] - 1) / B;
+      b0[a] = std::max<std::int64_t>(pmin[a] - 1, 0) / layout_.B;
+      b1[a] = std::min<std::int64_t>(pmax[a], layout_.cells[a] - 1) / layout_.B;
     }
     if (b0 == b1) {
-      if (b0 == last) return true;
-      last = b0;
+      if (b0 == last_) return true;
+      last_ = b0;
       return add(b0);
     }
     for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
@@ -423,7 +435,33 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
         for (std::int64_t x = b0[0]; x <= b1[0]; ++x)
           if (!add({x, y, z})) return false;
     return true;
-  };
+  }
+
+  /// The keys found, moved out.
+  std::set<BrickKey> takeKeys() { return std::move(keys_); }
+
+ private:
+  bool add(const BrickKey& k) {
+    GridBrick unused;
+    std::array<std::int64_t, 3> bdims;
+    if (keys_.insert(k).second) totalPoints_ += layout_.place(k, unused, bdims);
+    return totalPoints_ <= maxPoints_;
+  }
+
+  const BrickLayout& layout_;
+  const std::uint64_t maxPoints_;
+  std::uint64_t totalPoints_ = 0;
+  std::set<BrickKey> keys_;
+  BrickKey last_{-1, -1, -1};  ///< the brick of the previous single-brick range
+};
+
+/// The keys of the bricks `grid`'s active values need (ActiveBricks), `lo` being the global grid's lowest
+/// VDB coordinate. Throws when their samples would exceed `maxBytes`.
+template <typename GridT>
+std::set<BrickKey> activeBrickKeys(const std::string& path, const GridT& grid,
+                                   const openvdb::CoordBBox& active, const std::array<std::int64_t, 3>& lo,
+                                   const BrickLayout& layout, std::size_t maxBytes) {
+  ActiveBricks bricks(layout, maxBytes / sizeof(double));
   bool complete = true;
   for (auto it = grid.cbeginValueOn(); it && complete; ++it) {
     openvdb::CoordBBox box;
@@ -438,12 +476,18 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
       pmin[a] = static_cast<std::int64_t>(box.min()[a]) - lo[a];
       pmax[a] = static_cast<std::int64_t>(box.max()[a]) - lo[a];
     }
-    complete = addRange(pmin, pmax);
+    complete = bricks.addRange(pmin, pmax);
   }
   if (!complete) {
-    throw Error(path + ": grid '" + name + "' needs more dense bricks than the " +
-                std::to_string(options.maxBytes >> 20) + " MiB allowed");
+    throw Error(path + ": grid '" + grid.getName() + "' needs more dense bricks than the " +
+                std::to_string(maxBytes >> 20) + " MiB allowed");
   }
+  return bricks.takeKeys();
+}
+
+/// The bricks of `keys`, placed and with their grids allocated (samples not yet read).
+SparseVolume allocateBricks(const std::set<BrickKey>& keys, const BrickLayout& layout, const Vec3& spacing,
+                            std::size_t maxBytes) {
   SparseVolume volume;
   volume.bricks.resize(keys.size());
   volume.grids.resize(keys.size());
@@ -451,12 +495,20 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
   for (const BrickKey& k : keys) {
     GridBrick& brick = volume.bricks[next];
     std::array<std::int64_t, 3> bdims;
-    place(k, brick, bdims);
+    layout.place(k, brick, bdims);
     DenseGrid& g = volume.grids[next++];
-    g.allocate(bdims, options.maxBytes);
+    g.allocate(bdims, maxBytes);
     g.geometry.spacing = spacing;
     brick.grid = &g;
   }
+  return volume;
+}
+
+/// Each brick's samples and world origin from `grid`, in parallel; `lo`: the global grid's lowest VDB
+/// coordinate.
+template <typename GridT>
+void readBricks(const GridT& grid, const std::array<std::int64_t, 3>& lo, SparseVolume& volume) {
+  const openvdb::math::Transform& xf = grid.transform();
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, volume.bricks.size()),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       auto acc = grid.getConstAccessor();
@@ -481,10 +533,28 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
                             }
                       }
                     });
+}
 
+/// A VDB grid as bricks of dense samples around its active values: the placement checked, the bricks found,
+/// allocated and read, the whole described.
+template <typename GridT>
+SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadOptions& options,
+                      const std::string& typeName) {
+  const std::string name = grid.getName();
+  const openvdb::math::Transform& xf = grid.transform();
+  const Vec3 spacing = axisAlignedSpacing(path, name, xf);
+  const openvdb::CoordBBox active = grid.evalActiveVoxelBoundingBox();
+  if (active.empty()) throw Error(path + ": grid '" + name + "' has no active voxels");
+  const GlobalBox global = globalBox(path, name, active);
+  const BrickLayout layout(path, global.dims, options);
+  const std::set<BrickKey> keys = activeBrickKeys(path, grid, active, global.lo, layout, options.maxBytes);
+  SparseVolume volume = allocateBricks(keys, layout, spacing, options.maxBytes);
+  readBricks(grid, global.lo, volume);
+
+  const auto& lo = global.lo;
   const openvdb::Vec3d origin = xf.indexToWorld(
       openvdb::Vec3d(static_cast<double>(lo[0]), static_cast<double>(lo[1]), static_cast<double>(lo[2])));
-  volume.geometry.dims = dims;
+  volume.geometry.dims = global.dims;
   volume.geometry.origin = Vec3(origin[0], origin[1], origin[2]);
   volume.geometry.spacing = spacing;
   volume.isLevelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;

@@ -1,0 +1,410 @@
+#include "cip/model/build_passes.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+
+#include "cip/core/bisection.h"
+#include "cip/core/error.h"
+#include "cip/model/patch_fitting.h"
+#include "cip/patch/patch_coefficients.h"
+#include "cip/topology/cube_topology.h"
+
+namespace cip::build {
+
+Key GridKeys::cellEdge(const std::array<std::int64_t, 3>& cell, int e) const {
+  auto c = cube::vertexCoords(cube::edgeVertex(e, 0));
+  return point(cell[0] + c[0], cell[1] + c[1], cell[2] + c[2]) * 3 + cube::edgeAxis(e);
+}
+
+std::array<std::int64_t, 3> localPoint(const GridBrick& brick, const std::array<std::int64_t, 3>& global) {
+  return {global[0] - brick.offset[0], global[1] - brick.offset[1], global[2] - brick.offset[2]};
+}
+
+namespace {
+
+bool sameKey(const EdgeRef& x, const EdgeRef& y) {
+  return x.key == y.key;
+}
+
+// ---- Pass 1: scan ----
+
+std::uint8_t cellConfig(const DenseGrid& g, std::int64_t i, std::int64_t j, std::int64_t k, double iso,
+                        bool& nonFinite) {
+  std::uint8_t config = 0;
+  nonFinite = false;
+  for (int v = 0; v < 8; ++v) {
+    auto c = cube::vertexCoords(v);
+    double x = g.at(i + c[0], j + c[1], k + c[2]);
+    if (!std::isfinite(x)) nonFinite = true;
+    if (x > iso) config = static_cast<std::uint8_t>(config | (1u << v));
+  }
+  return config;
+}
+
+/// The first cell the scan's workers found with a non-finite corner value.
+struct NonFiniteCell {
+  std::atomic<bool> found{false};
+  std::array<std::int64_t, 3> at{};
+  std::mutex mutex;
+
+  void report(const std::array<std::int64_t, 3>& cell) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (!found) at = cell;
+    found = true;
+  }
+};
+
+/// Rows of cells scanned so far, for progress.
+struct RowCount {
+  std::atomic<std::int64_t> done{0};
+  std::int64_t total = 0;
+};
+
+/// The crossed cells of row (j, k) of brick `bi` (brick-local indices) and their crossed edges, sorted by
+/// key, each once.
+void scanRow(const Input& in, std::uint32_t bi, std::int64_t j, std::int64_t k, std::vector<CellRef>& cells,
+             std::vector<EdgeRef>& edges, NonFiniteCell& bad) {
+  const GridBrick& b = in.bricks[bi];
+  for (std::int64_t i = b.cellBegin[0]; i < b.cellEnd[0]; ++i) {
+    const std::array<std::int64_t, 3> cell{i + b.offset[0], j + b.offset[1], k + b.offset[2]};
+    bool nonFinite;
+    std::uint8_t config = cellConfig(*b.grid, i, j, k, in.options.isovalue, nonFinite);
+    if (nonFinite) {
+      if (!in.options.skipNonFinite) bad.report(cell);
+      continue;
+    }
+    if (config == 0 || config == 0xFF) continue;
+    cells.push_back(CellRef{in.keys.point(cell[0], cell[1], cell[2]), bi, config});
+    std::uint16_t crossed = cube::crossedEdges(config);
+    for (int e = 0; e < 12; ++e)
+      if ((crossed >> e) & 1) edges.push_back(EdgeRef{in.keys.cellEdge(cell, e), bi});
+  }
+  std::sort(edges.begin(), edges.end());
+  edges.erase(std::unique(edges.begin(), edges.end(), sameKey), edges.end());
+}
+
+/// Brick `bi`'s rows in parallel, appended to `scan` in row order.
+void scanBrick(const Input& in, std::uint32_t bi, RowCount& rows, NonFiniteCell& bad, CellScan& scan) {
+  const GridBrick& b = in.bricks[bi];
+  std::int64_t ny = b.cellEnd[1] - b.cellBegin[1], nz = b.cellEnd[2] - b.cellBegin[2];
+  if (ny <= 0 || nz <= 0 || b.cellEnd[0] <= b.cellBegin[0]) return;
+  std::vector<std::vector<CellRef>> rowCells(static_cast<std::size_t>(ny * nz));
+  std::vector<std::vector<EdgeRef>> rowEdges(rowCells.size());
+  tbb::parallel_for(
+      tbb::blocked_range<std::int64_t>(0, ny * nz), [&](const tbb::blocked_range<std::int64_t>& r) {
+        for (std::int64_t row = r.begin(); row != r.end(); ++row) {
+          scanRow(in, bi, b.cellBegin[1] + row % ny, b.cellBegin[2] + row / ny, rowCells[row], rowEdges[row],
+                  bad);
+          in.progress.set(0.3 * static_cast<double>(++rows.done) / static_cast<double>(rows.total));
+        }
+      });
+  for (auto& rc : rowCells) scan.cells.insert(scan.cells.end(), rc.begin(), rc.end());
+  for (auto& re : rowEdges) scan.edges.insert(scan.edges.end(), re.begin(), re.end());
+}
+
+// ---- Pass 3: isovertices ----
+
+/// Central-difference gradient (index space) at a brick-local grid point; one-sided at the brick border.
+Vec3 gridGradient(const DenseGrid& g, const std::array<std::int64_t, 3>& p) {
+  Vec3 grad;
+  for (int a = 0; a < 3; ++a) {
+    auto lo = p, hi = p;
+    if (p[a] > 0) lo[a] -= 1;
+    if (p[a] + 1 < g.geometry.dims[a]) hi[a] += 1;
+    double span = static_cast<double>(hi[a] - lo[a]);
+    grad[a] = span > 0 ? (g.at(hi[0], hi[1], hi[2]) - g.at(lo[0], lo[1], lo[2])) / span : 0.0;
+  }
+  return grad;
+}
+
+/// The isovertex of one edge, from the samples of its brick (or the analytic field in exact mode).
+IsoVertex edgeIsovertex(const Input& in, const SampledReference& reference, const EdgeRef& edge) {
+  const BuildOptions& options = in.options;
+  const double iso = options.isovalue;
+  const GridBrick& b = in.bricks[edge.brick];
+  const DenseGrid& g = *b.grid;
+  const int axis = static_cast<int>(edge.key % 3);
+  const auto gp = in.keys.coords(edge.key / 3);
+  const std::array<std::int64_t, 3> lp = localPoint(b, gp);
+  auto lq = lp;
+  lq[axis] += 1;
+  const double v0 = g.at(lp[0], lp[1], lp[2]), v1 = g.at(lq[0], lq[1], lq[2]);
+  const Vec3 towardsPositive = Vec3::Unit(axis) * (v1 > iso ? 1.0 : -1.0);
+  const Vec3 start(static_cast<double>(gp[0]), static_cast<double>(gp[1]), static_cast<double>(gp[2]));
+  IsoVertex vx;
+  double t;
+  if (options.normals == NormalMode::Exact) {
+    Vec3 wa = in.geometry.indexToWorld(start), wb = in.geometry.indexToWorld(start + Vec3::Unit(axis));
+    t = exactCrossing(*options.exactField, wa, wb, iso);
+    Vec3 gradWorld = options.exactField->gradient(wa + t * (wb - wa));
+    vx.normal = orientCornerNormal(gradWorld.cwiseProduct(in.geometry.spacing), towardsPositive);
+  } else {
+    t = linearCrossing(v0, v1, iso);
+    if (options.method == PatchMethod::Fitted && options.normals == NormalMode::Gradient) {
+      const PointHermiteTable& table = reference.tables[edge.brick];
+      t = cubicEdgeVertex(table.at(g.index(lp[0], lp[1], lp[2])), table.at(g.index(lq[0], lq[1], lq[2])),
+                          axis, iso, vx.normal);
+      if (v0 == iso || v1 == iso)  // on a grid point: see normalClearOfUncrossedEdges
+        vx.normal =
+            normalClearOfUncrossedEdges(g, v0 == iso ? lp : lq, axis, iso, vx.normal, towardsPositive);
+    } else if (options.normals == NormalMode::Edge) {
+      vx.normal = towardsPositive;
+    } else {
+      vx.normal =
+          orientCornerNormal((1 - t) * gridGradient(g, lp) + t * gridGradient(g, lq), towardsPositive);
+    }
+  }
+  vx.position = start;
+  vx.position[axis] += t;
+  vx.weight = 1.0;
+  return vx;
+}
+
+// ---- Pass 4: assembly ----
+
+/// Each cell's first corner in Model::corners; returns the number of corners.
+std::uint64_t layOutCorners(const std::vector<CellRef>& cells, std::vector<ModelCell>& modelCells) {
+  std::uint64_t cornerTotal = 0;
+  for (std::size_t c = 0; c < cells.size(); ++c) {
+    modelCells[c].firstCorner = static_cast<std::uint32_t>(cornerTotal);
+    cornerTotal += static_cast<std::uint64_t>(__builtin_popcount(cube::crossedEdges(cells[c].config)));
+    if (cornerTotal > std::numeric_limits<std::uint32_t>::max())
+      throw Error("too many corners for one model");
+  }
+  return cornerTotal;
+}
+
+/// The isovertices on the crossed edges of cell `gc` (its lowest point), in cell-local coordinates, and their
+/// indices in the model's table.
+void cellIsovertices(const Input& in, const CellRef& cell, const std::array<std::int64_t, 3>& gc,
+                     const std::vector<EdgeRef>& edges, const std::vector<IsoVertex>& vertices,
+                     std::array<IsoVertex, 12>& local, std::array<std::uint32_t, 12>& vertexIndex) {
+  const Vec3 origin(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
+  std::uint16_t crossed = cube::crossedEdges(cell.config);
+  for (int e = 0; e < 12; ++e) {
+    if (!((crossed >> e) & 1)) continue;
+    Key key = in.keys.cellEdge(gc, e);
+    auto it =
+        std::lower_bound(edges.begin(), edges.end(), key, [](const EdgeRef& x, Key k) { return x.key < k; });
+    vertexIndex[e] = static_cast<std::uint32_t>(it - edges.begin());
+    local[e] = vertices[vertexIndex[e]];
+    local[e].position -= origin;
+  }
+}
+
+/// Reference surface point inside a cell for CentralRule::Interior, or false.
+bool interiorPoint(const CornerPatch& patch, const std::function<double(const Vec3&)>& ref, Vec3& out) {
+  Vec3 dir = Vec3::Zero();
+  for (int c = 0; c < patch.numCorners; ++c) dir += patch.normal[c];
+  if (!(dir.norm() > 1e-12)) return false;
+  dir.normalize();
+  const Vec3 centre(0.5, 0.5, 0.5);
+  // Clip the line centre + s*dir to the cell, shrunk by a margin so the point is strictly interior.
+  const double margin = 1e-3;
+  double smin = -1e9, smax = 1e9;
+  for (int a = 0; a < 3; ++a) {
+    if (std::abs(dir[a]) < 1e-15) continue;
+    double s0 = (margin - 0.5) / dir[a], s1 = (1 - margin - 0.5) / dir[a];
+    smin = std::max(smin, std::min(s0, s1));
+    smax = std::min(smax, std::max(s0, s1));
+  }
+  constexpr int kSteps = 16;
+  double best = 1e9;
+  bool found = false;
+  double prevS = smin, prevF = ref(centre + smin * dir);
+  for (int s = 1; s <= kSteps; ++s) {
+    double cs = smin + (smax - smin) * s / kSteps, cf = ref(centre + cs * dir);
+    if ((prevF > 0) != (cf > 0)) {
+      double root =
+          bisectSignChange([&](double along) { return ref(centre + along * dir); }, prevS, cs, prevF);
+      if (std::abs(root) < best) {
+        best = std::abs(root);
+        out = centre + root * dir;
+        found = true;
+      }
+    }
+    prevS = cs;
+    prevF = cf;
+  }
+  return found;
+}
+
+/// The field minus the isovalue in cell-local coordinates of cell `gc`, for CentralRule::Interior: the
+/// analytic field when there is one, else the trilinear interpolant of the cell's corner samples.
+std::function<double(const Vec3&)> interiorReference(const Input& in, const CellRef& cell,
+                                                     const std::array<std::int64_t, 3>& gc) {
+  const double iso = in.options.isovalue;
+  if (const ScalarField* field = in.options.exactField) {
+    const Vec3 origin(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
+    return [field, &geometry = in.geometry, origin, iso](const Vec3& x) {
+      return field->value(geometry.indexToWorld(origin + x)) - iso;
+    };
+  }
+  const GridBrick& b = in.bricks[cell.brick];
+  const std::array<std::int64_t, 3> lp = localPoint(b, gc);
+  std::array<double, 8> v;
+  for (int k = 0; k < 8; ++k) {
+    auto vc = cube::vertexCoords(k);
+    v[k] = b.grid->at(lp[0] + vc[0], lp[1] + vc[1], lp[2] + vc[2]);
+  }
+  return [v, iso](const Vec3& x) {
+    double sum = 0;
+    for (int k = 0; k < 8; ++k) {
+      auto vc = cube::vertexCoords(k);
+      sum += v[k] * (vc[0] ? x[0] : 1 - x[0]) * (vc[1] ? x[1] : 1 - x[1]) * (vc[2] ? x[2] : 1 - x[2]);
+    }
+    return sum - iso;
+  };
+}
+
+/// One cell of the model: its loops, corners and (PatchMethod::Paper) coefficients into `mc` and its corner
+/// slots of model.corners. Returns its loops.
+CellLoops assembleCell(const Input& in, const CellRef& cell, const std::vector<EdgeRef>& edges, Model& model,
+                       ModelCell& mc) {
+  const auto gc = in.keys.coords(cell.key);
+  std::array<IsoVertex, 12> local;
+  std::array<std::uint32_t, 12> vertexIndex{};
+  cellIsovertices(in, cell, gc, edges, model.vertices, local, vertexIndex);
+  CellLoops loops;
+  // PatchMethod::Fitted replaces the coefficients afterwards (fitModelPatches).
+  const bool paperCoefficients = in.options.fitCoefficients && in.options.method == PatchMethod::Paper;
+  CornerPatch patch = buildCellPatch(cell.config, local, &mc.pairing03, &loops, paperCoefficients);
+  if (paperCoefficients && in.options.central == CentralRule::Interior) {
+    Vec3 p;
+    if (interiorPoint(patch, interiorReference(in, cell, gc), p))
+      patch.central = fitCentralCoefficient(patch, p);
+  }
+  mc.index = {static_cast<std::uint32_t>(gc[0]), static_cast<std::uint32_t>(gc[1]),
+              static_cast<std::uint32_t>(gc[2])};
+  mc.config = cell.config;
+  mc.numLoops = static_cast<std::uint8_t>(loops.numLoops);
+  mc.loopSize = loops.loopSize;
+  mc.faceCoefficient = patch.faceCoefficient;
+  mc.central = patch.central;
+  for (int k = 0; k < patch.numCorners; ++k) model.corners[mc.firstCorner + k] = vertexIndex[loops.edges[k]];
+  return loops;
+}
+
+}  // namespace
+
+CellScan scanCells(const Input& in) {
+  CellScan scan;
+  RowCount rows;
+  for (const auto& b : in.bricks)
+    rows.total += std::max<std::int64_t>(0, b.cellEnd[1] - b.cellBegin[1]) *
+                  std::max<std::int64_t>(0, b.cellEnd[2] - b.cellBegin[2]);
+  NonFiniteCell bad;
+  for (std::uint32_t bi = 0; bi < in.bricks.size(); ++bi) scanBrick(in, bi, rows, bad, scan);
+  if (bad.found) {
+    const auto& at = bad.at;
+    throw NonFiniteSampleError("NaN or infinite voxel value in cell (" + std::to_string(at[0]) + "," +
+                                   std::to_string(at[1]) + "," + std::to_string(at[2]) + ")",
+                               {at[0], at[1], at[2]});
+  }
+  return scan;
+}
+
+SampledReference prepareReference(const Input& in, const std::vector<CellRef>& cells) {
+  SampledReference reference;
+  reference.sampled = in.options.method == PatchMethod::Fitted && in.options.normals != NormalMode::Exact;
+  reference.kind = in.options.reconstruction;
+  if (!reference.sampled) return reference;
+  if (reference.kind == Reconstruction::Auto) {
+    SamplingEstimator estimator;
+    for (const CellRef& c : cells) {
+      const GridBrick& b = in.bricks[c.brick];
+      estimator.addCell(*b.grid, localPoint(b, in.keys.coords(c.key)));
+    }
+    reference.sampling = estimator.estimate();
+    reference.kind = chooseReconstruction(reference.sampling);
+  }
+  // The data at the corners of each brick's crossed cells, once per grid point.
+  reference.tables.resize(in.bricks.size());
+  std::vector<std::vector<std::int64_t>> brickCells(in.bricks.size());
+  for (const CellRef& c : cells) {
+    const GridBrick& b = in.bricks[c.brick];
+    const auto lp = localPoint(b, in.keys.coords(c.key));
+    brickCells[c.brick].push_back(b.grid->index(lp[0], lp[1], lp[2]));
+  }
+  tbb::parallel_for(std::size_t(0), in.bricks.size(), [&](std::size_t bi) {
+    if (!brickCells[bi].empty())
+      reference.tables[bi] = PointHermiteTable(*in.bricks[bi].grid, brickCells[bi], reference.kind);
+  });
+  return reference;
+}
+
+std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges) {
+  tbb::parallel_sort(edges.begin(), edges.end());
+  edges.erase(std::unique(edges.begin(), edges.end(), sameKey), edges.end());
+  if (edges.size() > std::numeric_limits<std::uint32_t>::max())
+    throw Error("too many isovertices for one model");
+  return edges;
+}
+
+std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference& reference,
+                                        const std::vector<EdgeRef>& edges) {
+  std::vector<IsoVertex> vertices(edges.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, edges.size()),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t n = r.begin(); n != r.end(); ++n)
+                        vertices[n] = edgeIsovertex(in, reference, edges[n]);
+                    });
+  return vertices;
+}
+
+std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>& cells,
+                                     const std::vector<EdgeRef>& edges, Model& model) {
+  model.cells.resize(cells.size());
+  model.corners.resize(layOutCorners(cells, model.cells));
+  const bool keepLoops = fitsModelWide(in.options);  // the fitting works on them again
+  std::vector<CellLoops> loops(keepLoops ? cells.size() : 0);
+  std::atomic<std::size_t> cellsDone{0};
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, cells.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t c = r.begin(); c != r.end(); ++c) {
+          CellLoops cellLoops = assembleCell(in, cells[c], edges, model, model.cells[c]);
+          if (keepLoops) loops[c] = cellLoops;
+          std::size_t done = ++cellsDone;
+          if (done % 4096 == 0)
+            in.progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
+        }
+      });
+  return loops;
+}
+
+void fitCoefficients(const Input& in, const std::vector<CellRef>& cells, const SampledReference& reference,
+                     const std::vector<CellLoops>& loops, Model& model) {
+  const BuildOptions& options = in.options;
+  const double iso = options.isovalue;
+  const Vec3 spacing = in.geometry.spacing;
+  const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
+  FittingStats stats = fitModelPatches(model, loops, [&](std::size_t c, CellReference& ref) {
+    const auto& index = model.cells[c].index;  // as keys.coords(cells[c].key), without divisions
+    const std::array<std::int64_t, 3> gc{index[0], index[1], index[2]};
+    if (options.normals == NormalMode::Exact) {
+      ref = CellReference();
+      ref.field = options.exactField;
+      ref.geometry = &model.geometry;
+      ref.origin = Vec3(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
+      ref.isovalue = iso;
+    } else {
+      const GridBrick& b = in.bricks[cells[c].brick];
+      reference.tables[cells[c].brick].setReference(localPoint(b, gc), iso, ref);
+    }
+    ref.metric = metric;
+  });
+  if (reference.sampled) {
+    model.reconstruction = reference.kind;
+    stats.reconstruction = reference.kind;
+    stats.sampling = reference.sampling;
+  }
+  if (options.fittingStats) *options.fittingStats = stats;
+}
+
+}  // namespace cip::build

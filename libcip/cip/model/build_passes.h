@@ -1,0 +1,132 @@
+/// @file build_passes.h
+/// @brief The passes of buildModel (model_builder.h), in the order it runs them: scan the cells, prepare the
+/// reference, place the isovertices, assemble the cells, fit the coefficients. What one pass hands the next
+/// is a struct here, so the data flow is in the signatures. Tables are ordered by grid keys (the scan's by
+/// brick and row), never by completion order: the model is the same for any number of threads. Internal to
+/// the builder; the passes run in its TBB arena.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <mutex>
+#include <vector>
+
+#include "cip/model/model.h"
+#include "cip/model/model_builder.h"
+#include "cip/reference/point_hermite_table.h"
+#include "cip/reference/reconstruction_choice.h"
+
+namespace cip::build {
+
+/// A grid point or grid edge of the global grid as one number: point keys in x-fastest order, edge keys as
+/// point key * 3 + axis (the edge from the point towards +axis).
+using Key = std::uint64_t;
+
+struct GridKeys {
+  std::array<std::int64_t, 3> dims;
+  Key point(std::int64_t i, std::int64_t j, std::int64_t k) const {
+    return static_cast<Key>(i + dims[0] * (j + dims[1] * k));
+  }
+  std::array<std::int64_t, 3> coords(Key p) const {
+    std::int64_t v = static_cast<std::int64_t>(p);
+    return {v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])};
+  }
+  /// The key of edge `e` (cube_topology.h numbering) of the cell whose lowest point is `cell`.
+  Key cellEdge(const std::array<std::int64_t, 3>& cell, int e) const;
+};
+
+/// A crossed grid edge, seen from a brick that owns one of its cells.
+struct EdgeRef {
+  Key key;
+  std::uint32_t brick;
+  bool operator<(const EdgeRef& o) const { return key != o.key ? key < o.key : brick < o.brick; }
+};
+
+/// A crossed cell (corners on both sides of the isovalue), its owning brick and sign configuration.
+struct CellRef {
+  Key key;
+  std::uint32_t brick;
+  std::uint8_t config;
+  bool operator<(const CellRef& o) const { return key < o.key; }
+};
+
+/// Reports the fraction done to BuildOptions::progress in steps of at least 0.005, never concurrently.
+class Progress {
+ public:
+  explicit Progress(const std::function<void(double)>& fn) : fn_(fn) {}
+  void set(double fraction) {
+    if (!fn_) return;
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (fraction < last_ + 0.005 && fraction < 1.0) return;
+    last_ = fraction;
+    fn_(fraction);
+  }
+
+ private:
+  const std::function<void(double)>& fn_;
+  std::mutex mutex_;
+  double last_ = -1;
+};
+
+/// What every pass reads.
+struct Input {
+  const GridGeometry& geometry;  ///< the global grid
+  const std::vector<GridBrick>& bricks;
+  const BuildOptions& options;
+  GridKeys keys;  ///< of the global grid
+  Progress& progress;
+};
+
+/// Brick-local indices of the global grid point `global` in `brick`.
+std::array<std::int64_t, 3> localPoint(const GridBrick& brick, const std::array<std::int64_t, 3>& global);
+
+/// Whether the coefficients are fitted model-wide (fitCoefficients below) rather than per cell.
+inline bool fitsModelWide(const BuildOptions& options) {
+  return options.fitCoefficients && options.method == PatchMethod::Fitted;
+}
+
+/// Scan's result: the crossed cells and, per brick row, their crossed edges without repeats (an edge shared
+/// by two bricks is listed by both), both brick by brick and row by row.
+struct CellScan {
+  std::vector<CellRef> cells;
+  std::vector<EdgeRef> edges;
+};
+
+/// Pass 1, progress 0 to 0.3. Throws NonFiniteSampleError for a cell with a NaN or infinite corner value
+/// unless options.skipNonFinite (then the cell is left out).
+CellScan scanCells(const Input& in);
+
+/// The reference of the samples: with the fitted construction, unless exact, the reconstruction (Auto
+/// resolved) and its Hermite data at the corners of the crossed cells, one table per brick.
+struct SampledReference {
+  bool sampled = false;
+  Reconstruction kind = Reconstruction::Auto;
+  SamplingEstimate sampling;              ///< what Auto was resolved from
+  std::vector<PointHermiteTable> tables;  ///< per brick (empty without crossed cells or when not sampled)
+};
+
+/// Pass 2. `cells` in scan order (Auto's estimate adds them in that order).
+SampledReference prepareReference(const Input& in, const std::vector<CellRef>& cells);
+
+/// The scanned edges sorted by key, each once (from the first brick that lists it). Throws cip::Error when
+/// there are more than 2^32 - 1.
+std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges);
+
+/// Pass 3: the isovertex of every edge of `edges` (uniqueEdges), in their order: the model's vertex table.
+std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference& reference,
+                                        const std::vector<EdgeRef>& edges);
+
+/// Pass 4, progress 0.5 to 1: model.cells and model.corners from `cells` (sorted by key) and the isovertices
+/// placed on `edges`: each cell's loops, corners and, with PatchMethod::Paper, its coefficients. Returns the
+/// cells' loops when fitsModelWide (for fitCoefficients), else nothing. Throws cip::Error when the corners
+/// exceed 2^32 - 1.
+std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>& cells,
+                                     const std::vector<EdgeRef>& edges, Model& model);
+
+/// Pass 5, when fitsModelWide: the side and central coefficients of every cell (fitModelPatches) against the
+/// reference (the analytic field in exact mode, else the tricubic interpolant of the cell's brick); records
+/// the reconstruction in the model and options.fittingStats.
+void fitCoefficients(const Input& in, const std::vector<CellRef>& cells, const SampledReference& reference,
+                     const std::vector<CellLoops>& loops, Model& model);
+
+}  // namespace cip::build
