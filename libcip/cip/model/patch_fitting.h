@@ -1,38 +1,13 @@
 /// @file patch_fitting.h
-/// @brief The fitted corner-patch construction (PatchMethod::Fitted): side and central coefficients fitted to
-/// a reference surface under sign constraints, with corner-plane normals blended towards the edge direction
-/// only where a face or cell cannot be made sign-correct.
-///
-/// Reference: the analytic field (NormalMode::Exact), else a tricubic Hermite interpolant of the samples
-/// (tricubic_reference.h; BuildOptions::reconstruction chooses its derivatives). Every decision uses data
-/// that all cells sharing it see identically:
-///  - isovertex (NormalMode::Gradient): root of the reference along the grid edge, normal = its gradient
-///  there
-///    (a function of the grid edge's neighbourhood only, shared by its 4 cells);
-///  - side coefficient w_f: computed once per grid face from the reference on that face, in the face's
-///    canonical frame (faceCrossingsOf), and copied to both cells;
-///  - central coefficient: per cell.
-/// On each face, w_f is the least-squares fit of the face curve to reference face-curve points, clamped into
-/// the interval of w for which the face restriction has the reference's sign at every face sample lying more
-/// than a margin from the reference surface, and, where that value fails them, the sign of the vertices
-/// along the face's edges without a crossing (unless the reference itself crosses such an edge). In each cell
-/// the central coefficient is fitted to interior reference surface points and clamped into the interval that
-/// keeps the reference's sign at interior lattice points away from the surface and, where that value fails
-/// them, the corners' sign on the cell's faces that are not bounding planes. Those edges and faces are
-/// continued by no neighbouring patch, so a wrong sign there would be a hole; where they cannot be met with
-/// the lattice, the lattice decides (for a cell, after trying the open-face points where the reference agrees
-/// with the corners), and they never make a face or cell fail (docs/method.md, step 7); after the rounds,
-/// a face whose uncrossed edge next to an open face stays crossed that way has the normals of its isovertices
-/// blended alone, kept only where that closes the hole and no face or cell around it fails or gets one.
-/// Samples (of faces and cells) the first-order distance estimate calls near the surface are checked by
-/// Newton steps on the reference where the patch gives them the wrong sign. When an interval is empty, the
-/// face or cell fails, and the normals of all its isovertices move one step from the gradient towards the
-/// edge direction (blend levels, shared per isovertex); the affected faces and cells are recomputed. A round
-/// that does not reduce the cells left unresolved is undone and ends the rounds (blending cannot fix a cell
-/// whose field has structure inside that its loops do not follow, and there it spreads failures). A cell left
-/// without a sign-correct central coefficient takes the one the fewest counting samples contradict. Rounds
-/// are deterministic (decisions of a round depend only on the previous round's state), so the result does not
-/// depend on the number of threads. docs/method.md has the details and the measurements.
+/// @brief The fitted corner-patch construction (PatchMethod::Fitted) over a whole model: side and central
+/// coefficients fitted to a reference surface (the analytic field, or the tricubic interpolant of the
+/// samples) under sign constraints, so that the patch has no extra branches where the reference has none,
+/// with corner-plane normals blended towards the edge direction only where a face or cell cannot be made
+/// sign-correct. Each number is decided from data that all the cells sharing it see identically (a side
+/// coefficient once per face, copied to both cells), so the joins between cells stay continuous, and the
+/// result does not depend on the number of threads. docs/method.md ("`fitted`", "The construction") has the
+/// construction step by step and its measurements; patch/face_fit.h and patch/cell_fit.h fit one face and one
+/// cell, model/fitting_rounds.h runs the passes over the model.
 #pragma once
 #include <array>
 #include <cstdint>
