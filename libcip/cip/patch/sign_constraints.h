@@ -1,5 +1,6 @@
 /// @file sign_constraints.h
-/// @brief One patch coefficient w fitted under sign constraints, checked lazily (used by patch_fitting.cpp).
+/// @brief One patch coefficient w fitted under sign constraints, checked lazily (used by the face and cell
+/// fits, face_fit.h and cell_fit.h).
 ///
 /// At sample i the patch is a_i + w b_i (b_i >= 0) and should have the sign of the reference r_i. Every
 /// sample that lies away from the reference surface constrains w to a half-line; the coefficient is the
