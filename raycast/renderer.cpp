@@ -40,10 +40,10 @@ std::pair<double, double> samplePosition(int x, int y, int s, int spp) {
   return {(s % m + jx) / m, (s / m + jy) / rows};
 }
 
-RenderImage render(const RenderScene& scene, const Camera& camera, const RenderOptions& options,
-                   RenderStats* stats) {
-  if (options.samplesPerPixel < 1) throw Error("samples per pixel must be at least 1");
-  const auto start = std::chrono::steady_clock::now();
+namespace {
+
+/// An image of the camera's size with every pixel a miss.
+RenderImage blankImage(const Camera& camera) {
   RenderImage img;
   img.width = camera.width();
   img.height = camera.height();
@@ -53,108 +53,157 @@ RenderImage render(const RenderScene& scene, const Camera& camera, const RenderO
   img.normal.assign(3 * n, 0.0f);
   img.id.assign(n, kNoHitId);
   img.curvature.assign(n, std::numeric_limits<float>::quiet_NaN());
-  std::vector<float> light(n, 0.0f);  // curvature mode: mean lighting factor over hit samples
+  return img;
+}
 
-  const ShadingFrame frame = makeShadingFrame(camera, scene.bounds());
-  const int spp = options.samplesPerPixel;
-  const int tile = std::max(1, options.tileSize);
-  const int tilesX = (img.width + tile - 1) / tile, tilesY = (img.height + tile - 1) / tile;
-  const int tiles = tilesX * tilesY;
-  const double inf = std::numeric_limits<double>::infinity();
-  std::atomic<std::int64_t> primary{0}, shadow{0}, done{0};
-  std::mutex progressMutex;
+/// Renders tiles of the image: each pixel's samples and its centre ray. Tiles write disjoint pixels.
+class TileRenderer {
+ public:
+  TileRenderer(const RenderScene& scene, const Camera& camera, const RenderOptions& options, RenderImage& img,
+               std::vector<float>& light)
+      : scene_(scene),
+        camera_(camera),
+        options_(options),
+        frame_(makeShadingFrame(camera, scene.bounds())),
+        img_(img),
+        light_(light),
+        tilesX_((img.width + tileSize() - 1) / tileSize()),
+        tiles_(tilesX_ * ((img.height + tileSize() - 1) / tileSize())) {}
 
-  auto renderTile = [&](int t) {
-    const int x0 = (t % tilesX) * tile, y0 = (t / tilesX) * tile;
-    const int x1 = std::min(img.width, x0 + tile), y1 = std::min(img.height, y0 + tile);
+  int tiles() const { return tiles_; }
+
+  /// Renders tile t (row-major over the tiles) and reports progress.
+  void renderTile(int t) {
+    const int tile = tileSize();
+    const int x0 = (t % tilesX_) * tile, y0 = (t / tilesX_) * tile;
+    const int x1 = std::min(img_.width, x0 + tile), y1 = std::min(img_.height, y0 + tile);
     std::int64_t rays = 0, shadowRays = 0;
     for (int y = y0; y < y1; ++y)
-      for (int x = x0; x < x1; ++x) {
-        const std::size_t p = static_cast<std::size_t>(y) * img.width + x;
-        Vec3 sum = Vec3::Zero();
-        double curvatureSum = 0, lightSum = 0;
-        int hits = 0, curvatureHits = 0;
-        SurfaceHit hit;
-        for (int s = 0; s < spp; ++s) {
-          const auto [u, v] = samplePosition(x, y, s, spp);
-          const Ray ray = camera.ray(x + u, y + v);
-          ++rays;
-          if (!scene.intersect(ray, 0.0, inf, hit)) continue;
-          ++hits;
-          const ShadedSample shaded = shade(hit, ray, scene, frame, options.shading, shadowRays);
-          sum += shaded.rgb;
-          lightSum += shaded.light;
-          if (std::isfinite(hit.meanCurvature)) {
-            curvatureSum += hit.meanCurvature;
-            ++curvatureHits;
-          }
-        }
-        for (int c = 0; c < 3; ++c) img.rgba[4 * p + c] = static_cast<float>(sum[c] / spp);
-        img.rgba[4 * p + 3] = static_cast<float>(static_cast<double>(hits) / spp);
-        if (hits > 0) light[p] = static_cast<float>(lightSum / hits);
-        if (curvatureHits > 0) img.curvature[p] = static_cast<float>(curvatureSum / curvatureHits);
-        // Auxiliary channels from the ray through the pixel centre.
-        bool centreHit;
-        if (spp == 1) {
-          centreHit = hits > 0;
-        } else {
-          ++rays;
-          centreHit = scene.intersect(camera.ray(x + 0.5, y + 0.5), 0.0, inf, hit);
-        }
-        if (centreHit) {
-          img.depth[p] = static_cast<float>(hit.t);
-          for (int c = 0; c < 3; ++c) img.normal[3 * p + c] = static_cast<float>(hit.normal[c]);
-          img.id[p] = hit.id;
-        }
-      }
+      for (int x = x0; x < x1; ++x) renderPixel(x, y, rays, shadowRays);
     primary += rays;
     shadow += shadowRays;
-    const std::int64_t d = ++done;
-    if (options.progress) {
-      std::lock_guard<std::mutex> lock(progressMutex);
-      options.progress(static_cast<double>(d) / tiles);
+    const std::int64_t d = ++done_;
+    if (options_.progress) {
+      std::lock_guard<std::mutex> lock(progressMutex_);
+      options_.progress(static_cast<double>(d) / tiles_);
     }
-  };
+  }
 
+  std::atomic<std::int64_t> primary{0}, shadow{0};  ///< camera and shadow rays traced so far
+
+ private:
+  int tileSize() const { return std::max(1, options_.tileSize); }
+
+  /// Colour, coverage, mean lighting and mean curvature over the pixel's samples; depth, normal and id from
+  /// the ray through its centre.
+  void renderPixel(int x, int y, std::int64_t& rays, std::int64_t& shadowRays) {
+    const double inf = std::numeric_limits<double>::infinity();
+    const int spp = options_.samplesPerPixel;
+    const std::size_t p = static_cast<std::size_t>(y) * img_.width + x;
+    Vec3 sum = Vec3::Zero();
+    double curvatureSum = 0, lightSum = 0;
+    int hits = 0, curvatureHits = 0;
+    SurfaceHit hit;
+    for (int s = 0; s < spp; ++s) {
+      const auto [u, v] = samplePosition(x, y, s, spp);
+      const Ray ray = camera_.ray(x + u, y + v);
+      ++rays;
+      if (!scene_.intersect(ray, 0.0, inf, hit)) continue;
+      ++hits;
+      const ShadedSample shaded = shade(hit, ray, scene_, frame_, options_.shading, shadowRays);
+      sum += shaded.rgb;
+      lightSum += shaded.light;
+      if (std::isfinite(hit.meanCurvature)) {
+        curvatureSum += hit.meanCurvature;
+        ++curvatureHits;
+      }
+    }
+    for (int c = 0; c < 3; ++c) img_.rgba[4 * p + c] = static_cast<float>(sum[c] / spp);
+    img_.rgba[4 * p + 3] = static_cast<float>(static_cast<double>(hits) / spp);
+    if (hits > 0) light_[p] = static_cast<float>(lightSum / hits);
+    if (curvatureHits > 0) img_.curvature[p] = static_cast<float>(curvatureSum / curvatureHits);
+    // Auxiliary channels from the ray through the pixel centre.
+    bool centreHit;
+    if (spp == 1) {
+      centreHit = hits > 0;
+    } else {
+      ++rays;
+      centreHit = scene_.intersect(camera_.ray(x + 0.5, y + 0.5), 0.0, inf, hit);
+    }
+    if (centreHit) {
+      img_.depth[p] = static_cast<float>(hit.t);
+      for (int c = 0; c < 3; ++c) img_.normal[3 * p + c] = static_cast<float>(hit.normal[c]);
+      img_.id[p] = hit.id;
+    }
+  }
+
+  const RenderScene& scene_;
+  const Camera& camera_;
+  const RenderOptions& options_;
+  const ShadingFrame frame_;
+  RenderImage& img_;
+  std::vector<float>& light_;
+  const int tilesX_, tiles_;
+  std::atomic<std::int64_t> done_{0};
+  std::mutex progressMutex_;
+};
+
+/// The curvature colour map's range: the given one, or symmetric about 0 with the 90th percentile of
+/// |curvature| over the pixels that have one (1 if none or 0).
+std::pair<double, double> curvatureRange(const RenderImage& img, const ShadingOptions& shading) {
+  if (shading.curvatureRange) return *shading.curvatureRange;
+  std::vector<float> mags;
+  for (std::size_t p = 0; p < img.pixels(); ++p)
+    if (std::isfinite(img.curvature[p])) mags.push_back(std::abs(img.curvature[p]));
+  double k = 1;
+  if (!mags.empty()) {
+    const std::size_t at = std::min(mags.size() - 1, mags.size() * 9 / 10);
+    std::nth_element(mags.begin(), mags.begin() + static_cast<std::ptrdiff_t>(at), mags.end());
+    k = mags[at] > 0 ? mags[at] : 1.0;
+  }
+  return {-k, k};
+}
+
+/// Curvature mode: replaces each covered pixel's colour by the curvature colour, dimmed by its mean lighting.
+void colourByCurvature(RenderImage& img, const std::vector<float>& light, double lo, double hi) {
+  for (std::size_t p = 0; p < img.pixels(); ++p) {
+    const float a = img.rgba[4 * p + 3];
+    if (a <= 0) continue;
+    const Vec3 c = curvatureColour(img.curvature[p], lo, hi) * (0.35 + 0.65 * light[p]) * a;
+    for (int k = 0; k < 3; ++k) img.rgba[4 * p + k] = static_cast<float>(c[k]);
+  }
+}
+
+}  // namespace
+
+RenderImage render(const RenderScene& scene, const Camera& camera, const RenderOptions& options,
+                   RenderStats* stats) {
+  if (options.samplesPerPixel < 1) throw Error("samples per pixel must be at least 1");
+  const auto start = std::chrono::steady_clock::now();
+  RenderImage img = blankImage(camera);
+  std::vector<float> light(img.pixels(), 0.0f);  // curvature mode: mean lighting factor over hit samples
+
+  TileRenderer tiles(scene, camera, options, img, light);
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   arena.execute([&] {
-    tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const tbb::blocked_range<int>& r) {
-      for (int t = r.begin(); t != r.end(); ++t) renderTile(t);
+    tbb::parallel_for(tbb::blocked_range<int>(0, tiles.tiles(), 1), [&](const tbb::blocked_range<int>& r) {
+      for (int t = r.begin(); t != r.end(); ++t) tiles.renderTile(t);
     });
   });
 
   double lo = 0, hi = 0;
   if (options.shading.mode == ShadingMode::Curvature) {
-    if (options.shading.curvatureRange) {
-      std::tie(lo, hi) = *options.shading.curvatureRange;
-    } else {
-      std::vector<float> mags;
-      for (std::size_t p = 0; p < n; ++p)
-        if (std::isfinite(img.curvature[p])) mags.push_back(std::abs(img.curvature[p]));
-      double k = 1;
-      if (!mags.empty()) {
-        const std::size_t at = std::min(mags.size() - 1, mags.size() * 9 / 10);
-        std::nth_element(mags.begin(), mags.begin() + static_cast<std::ptrdiff_t>(at), mags.end());
-        k = mags[at] > 0 ? mags[at] : 1.0;
-      }
-      lo = -k;
-      hi = k;
-    }
-    for (std::size_t p = 0; p < n; ++p) {
-      const float a = img.rgba[4 * p + 3];
-      if (a <= 0) continue;
-      const Vec3 c = curvatureColour(img.curvature[p], lo, hi) * (0.35 + 0.65 * light[p]) * a;
-      for (int k = 0; k < 3; ++k) img.rgba[4 * p + k] = static_cast<float>(c[k]);
-    }
+    std::tie(lo, hi) = curvatureRange(img, options.shading);
+    colourByCurvature(img, light, lo, hi);
   }
 
   if (stats) {
     stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     stats->threads = arena.max_concurrency();
-    stats->primaryRays = primary;
-    stats->shadowRays = shadow;
+    stats->primaryRays = tiles.primary;
+    stats->shadowRays = tiles.shadow;
     stats->hitPixels = 0;
-    for (std::size_t p = 0; p < n; ++p) stats->hitPixels += img.rgba[4 * p + 3] > 0;
+    for (std::size_t p = 0; p < img.pixels(); ++p) stats->hitPixels += img.rgba[4 * p + 3] > 0;
     stats->curvatureLo = lo;
     stats->curvatureHi = hi;
   }

@@ -338,6 +338,164 @@ int findProperty(const Element& e, const char* name) {
 }
 
 // ---------------------------------------------------------------------------------------------------------------
+// Elements
+
+/// The vertex element's x, y and z properties (scalars, or the file is refused) and its nx, ny and nz if all
+/// three are scalars (else -1 each).
+struct VertexProperties {
+  int position[3];
+  int normal[3] = {-1, -1, -1};
+};
+
+VertexProperties vertexProperties(const Element& e, const std::string& name) {
+  VertexProperties vp;
+  const char* axes[3] = {"x", "y", "z"};
+  const char* normalAxes[3] = {"nx", "ny", "nz"};
+  bool hasNormals = true;
+  for (int a = 0; a < 3; ++a) {
+    vp.position[a] = findProperty(e, axes[a]);
+    if (vp.position[a] < 0 || e.properties[vp.position[a]].isList()) {
+      throw Error(name + ": PLY vertex element lacks scalar x, y and z properties");
+    }
+    const int k = findProperty(e, normalAxes[a]);
+    hasNormals = hasNormals && k >= 0 && !e.properties[k].isList();
+  }
+  if (hasNormals) {
+    for (int a = 0; a < 3; ++a) vp.normal[a] = findProperty(e, normalAxes[a]);
+  }
+  return vp;
+}
+
+/// The face element's vertex index list ("vertex_indices", or "vertex_index"): a list of an integer type, or
+/// the file is refused.
+int faceIndexProperty(const Element& e, const std::string& name) {
+  int k = findProperty(e, "vertex_indices");
+  if (k < 0) k = findProperty(e, "vertex_index");
+  if (k < 0 || !e.properties[k].isList())
+    throw Error(name + ": PLY face element lacks a vertex_indices list");
+  if (!isInteger(e.properties[k].type))
+    throw Error(name + ": PLY face vertex indices must have an integer type");
+  return k;
+}
+
+/// Structural checks of the vertex and face elements, before any data is read (so they apply to empty
+/// elements too).
+void checkElements(const Header& h, const std::string& name) {
+  for (const Element& e : h.elements) {
+    if (e.name == "vertex") vertexProperties(e, name);
+    if (e.name == "face") faceIndexProperty(e, name);
+  }
+}
+
+/// Refuses an element whose records cannot fit in the data that remains.
+void checkRecordsFit(const Element& e, const BodyReader& r, const std::string& name) {
+  const std::size_t minBytes = minRecordBytes(e, r.ascii());
+  if (minBytes == 0) throw Error(name + ": PLY element \"" + e.name + "\" has records but no properties");
+  if (e.count > r.remaining() / minBytes + (r.ascii() ? 1 : 0)) {
+    throw Error(name + ": PLY header declares " + std::to_string(e.count) + " " + e.name +
+                " records but only " + std::to_string(r.remaining()) + " bytes of data remain (at least " +
+                std::to_string(minBytes) + " bytes per record)");
+  }
+}
+
+/// Skips one value of a property: a scalar, or a list with its count.
+void skipProperty(BodyReader& r, const Property& p, const char* listWhat, const char* scalarWhat) {
+  if (p.isList()) {
+    std::uint64_t n = r.readCount(p.countType, p.type, listWhat);
+    r.skip(p.type, n, listWhat);
+  } else {
+    r.skip(p.type, 1, scalarWhat);
+  }
+}
+
+void readVertices(const Element& e, BodyReader& r, const std::string& name, TriangleMesh& mesh) {
+  if (e.count > std::numeric_limits<std::uint32_t>::max()) {
+    throw Error(name + ": PLY file has " + std::to_string(e.count) +
+                " vertices; at most 2^32-1 are supported");
+  }
+  const VertexProperties vp = vertexProperties(e, name);
+  const bool hasNormals = vp.normal[0] >= 0;
+  std::vector<int> slot(e.properties.size(), -1);  // 0..2 position, 3..5 normal
+  for (int a = 0; a < 3; ++a) {
+    slot[vp.position[a]] = a;
+    if (hasNormals) slot[vp.normal[a]] = 3 + a;
+  }
+  mesh.positions.resize(static_cast<std::size_t>(e.count));
+  if (hasNormals) mesh.normals.resize(static_cast<std::size_t>(e.count));
+  for (std::size_t v = 0; v < e.count; ++v) {
+    double val[6] = {0, 0, 0, 0, 0, 0};
+    for (std::size_t k = 0; k < e.properties.size(); ++k) {
+      const Property& p = e.properties[k];
+      if (slot[k] >= 0) {  // a scalar (slots go to scalar properties only)
+        val[slot[k]] = r.read(p.type, "vertex data");
+      } else {
+        skipProperty(r, p, "vertex list", "vertex data");
+      }
+    }
+    for (double x : val) {
+      if (!std::isfinite(x)) throw Error(name + ": PLY vertex " + std::to_string(v) + " is not finite");
+    }
+    mesh.positions[v] = Vec3(val[0], val[1], val[2]);
+    if (hasNormals) mesh.normals[v] = Vec3(val[3], val[4], val[5]);
+  }
+}
+
+/// Reads the faces as triangle fans (a polygon of n vertices gives n - 2 triangles).
+void readFaces(const Element& e, BodyReader& r, const std::string& name, TriangleMesh& mesh) {
+  const int pi = faceIndexProperty(e, name);
+  mesh.triangles.reserve(static_cast<std::size_t>(e.count));
+  std::vector<std::uint32_t> poly;
+  for (std::uint64_t f = 0; f < e.count; ++f) {
+    for (std::size_t k = 0; k < e.properties.size(); ++k) {
+      const Property& p = e.properties[k];
+      if (static_cast<int>(k) != pi) {
+        skipProperty(r, p, "face list", "face data");
+        continue;
+      }
+      std::uint64_t n = r.readCount(p.countType, p.type, "face vertex_indices");
+      if (n < 3) {
+        throw Error(name + ": PLY face " + std::to_string(f) + " has " + std::to_string(n) +
+                    " vertices (at least 3 needed)");
+      }
+      poly.resize(static_cast<std::size_t>(n));
+      for (std::uint64_t i = 0; i < n; ++i) {
+        double idx = r.read(p.type, "face vertex_indices");
+        if (idx < 0) throw Error(name + ": PLY face " + std::to_string(f) + " has a negative vertex index");
+        poly[static_cast<std::size_t>(i)] = static_cast<std::uint32_t>(idx);
+      }
+      for (std::size_t i = 1; i + 1 < poly.size(); ++i)
+        mesh.triangles.push_back({poly[0], poly[i], poly[i + 1]});
+    }
+  }
+}
+
+void skipElement(const Element& e, BodyReader& r) {
+  const std::string what = "element " + e.name;
+  for (std::uint64_t i = 0; i < e.count; ++i) {
+    for (const Property& p : e.properties) skipProperty(r, p, what.c_str(), what.c_str());
+  }
+}
+
+/// Checks, once all elements are read, that there were vertices and faces and every index names a vertex.
+void checkMesh(const Header& h, const TriangleMesh& mesh, const std::string& name) {
+  auto declared = [&](const char* element) {
+    return std::any_of(h.elements.begin(), h.elements.end(),
+                       [&](const Element& e) { return e.name == element; });
+  };
+  if (!declared("vertex")) throw Error(name + ": PLY file has no vertex element");
+  if (!declared("face")) throw Error(name + ": PLY file has no face element");
+  const std::uint64_t vertexCount = mesh.positions.size();
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    for (std::uint32_t v : mesh.triangles[t]) {
+      if (v >= vertexCount) {
+        throw Error(name + ": PLY face uses vertex index " + std::to_string(v) + " but there are only " +
+                    std::to_string(vertexCount) + " vertices");
+      }
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------------------
 // Writer helpers
 
 class ByteSink {
@@ -443,153 +601,22 @@ std::size_t writePly(const TriangleMesh& mesh, const std::string& path, const Pl
 }
 
 TriangleMesh parsePly(const std::uint8_t* data, std::size_t size, const std::string& name) {
-  Header h = parseHeader(data, size, name);
+  const Header h = parseHeader(data, size, name);
+  checkElements(h, name);
   BodyReader r(data, size, h.dataOffset, h.format, name);
   TriangleMesh mesh;
-  bool sawVertex = false, sawFace = false;
-  std::uint64_t vertexCount = 0;
-  // Structural checks first, so that they apply to empty elements too.
   for (const Element& e : h.elements) {
+    if (e.count == 0) continue;
+    checkRecordsFit(e, r, name);
     if (e.name == "vertex") {
-      for (const char* axis : {"x", "y", "z"}) {
-        int k = findProperty(e, axis);
-        if (k < 0 || e.properties[k].isList()) {
-          throw Error(name + ": PLY vertex element lacks scalar x, y and z properties");
-        }
-      }
+      readVertices(e, r, name, mesh);
     } else if (e.name == "face") {
-      int k = findProperty(e, "vertex_indices");
-      if (k < 0) k = findProperty(e, "vertex_index");
-      if (k < 0 || !e.properties[k].isList())
-        throw Error(name + ": PLY face element lacks a vertex_indices list");
-      if (!isInteger(e.properties[k].type)) {
-        throw Error(name + ": PLY face vertex indices must have an integer type");
-      }
-    }
-  }
-  for (const Element& e : h.elements) {
-    if (e.count == 0) {
-      if (e.name == "vertex") sawVertex = true;
-      if (e.name == "face") sawFace = true;
-      continue;
-    }
-    const std::size_t minBytes = minRecordBytes(e, r.ascii());
-    const std::string what = "element " + e.name;
-    if (minBytes == 0) throw Error(name + ": PLY element \"" + e.name + "\" has records but no properties");
-    if (e.count > r.remaining() / minBytes + (r.ascii() ? 1 : 0)) {
-      throw Error(name + ": PLY header declares " + std::to_string(e.count) + " " + e.name +
-                  " records but only " + std::to_string(r.remaining()) + " bytes of data remain (at least " +
-                  std::to_string(minBytes) + " bytes per record)");
-    }
-    if (e.name == "vertex") {
-      sawVertex = true;
-      if (e.count > std::numeric_limits<std::uint32_t>::max()) {
-        throw Error(name + ": PLY file has " + std::to_string(e.count) +
-                    " vertices; at most 2^32-1 are supported");
-      }
-      int px = findProperty(e, "x"), py = findProperty(e, "y"), pz = findProperty(e, "z");
-      int nx = findProperty(e, "nx"), ny = findProperty(e, "ny"), nz = findProperty(e, "nz");
-      if (px < 0 || py < 0 || pz < 0 || e.properties[px].isList() || e.properties[py].isList() ||
-          e.properties[pz].isList()) {
-        throw Error(name + ": PLY vertex element lacks scalar x, y and z properties");
-      }
-      bool hasNormals = nx >= 0 && ny >= 0 && nz >= 0 && !e.properties[nx].isList() &&
-                        !e.properties[ny].isList() && !e.properties[nz].isList();
-      std::vector<int> slot(e.properties.size(), -1);  // 0..2 position, 3..5 normal
-      slot[px] = 0;
-      slot[py] = 1;
-      slot[pz] = 2;
-      if (hasNormals) {
-        slot[nx] = 3;
-        slot[ny] = 4;
-        slot[nz] = 5;
-      }
-      vertexCount = e.count;
-      mesh.positions.resize(static_cast<std::size_t>(e.count));
-      if (hasNormals) mesh.normals.resize(static_cast<std::size_t>(e.count));
-      for (std::size_t v = 0; v < e.count; ++v) {
-        double val[6] = {0, 0, 0, 0, 0, 0};
-        for (std::size_t k = 0; k < e.properties.size(); ++k) {
-          const Property& p = e.properties[k];
-          if (p.isList()) {
-            std::uint64_t n = r.readCount(p.countType, p.type, "vertex list");
-            r.skip(p.type, n, "vertex list");
-          } else if (slot[k] >= 0) {
-            val[slot[k]] = r.read(p.type, "vertex data");
-          } else {
-            r.skip(p.type, 1, "vertex data");
-          }
-        }
-        for (double x : val) {
-          if (!std::isfinite(x)) throw Error(name + ": PLY vertex " + std::to_string(v) + " is not finite");
-        }
-        mesh.positions[v] = Vec3(val[0], val[1], val[2]);
-        if (hasNormals) mesh.normals[v] = Vec3(val[3], val[4], val[5]);
-      }
-    } else if (e.name == "face") {
-      sawFace = true;
-      int pi = findProperty(e, "vertex_indices");
-      if (pi < 0) pi = findProperty(e, "vertex_index");
-      if (pi < 0 || !e.properties[pi].isList()) {
-        throw Error(name + ": PLY face element lacks a vertex_indices list");
-      }
-      if (!isInteger(e.properties[pi].type)) {
-        throw Error(name + ": PLY face vertex indices must have an integer type");
-      }
-      mesh.triangles.reserve(static_cast<std::size_t>(e.count));
-      std::vector<std::uint32_t> poly;
-      for (std::uint64_t f = 0; f < e.count; ++f) {
-        for (std::size_t k = 0; k < e.properties.size(); ++k) {
-          const Property& p = e.properties[k];
-          if (static_cast<int>(k) != pi) {
-            if (p.isList()) {
-              std::uint64_t n = r.readCount(p.countType, p.type, "face list");
-              r.skip(p.type, n, "face list");
-            } else {
-              r.skip(p.type, 1, "face data");
-            }
-            continue;
-          }
-          std::uint64_t n = r.readCount(p.countType, p.type, "face vertex_indices");
-          if (n < 3) {
-            throw Error(name + ": PLY face " + std::to_string(f) + " has " + std::to_string(n) +
-                        " vertices (at least 3 needed)");
-          }
-          poly.resize(static_cast<std::size_t>(n));
-          for (std::uint64_t i = 0; i < n; ++i) {
-            double idx = r.read(p.type, "face vertex_indices");
-            if (idx < 0) {
-              throw Error(name + ": PLY face " + std::to_string(f) + " has a negative vertex index");
-            }
-            poly[static_cast<std::size_t>(i)] = static_cast<std::uint32_t>(idx);
-          }
-          for (std::size_t i = 1; i + 1 < poly.size(); ++i)
-            mesh.triangles.push_back({poly[0], poly[i], poly[i + 1]});
-        }
-      }
+      readFaces(e, r, name, mesh);
     } else {
-      for (std::uint64_t i = 0; i < e.count; ++i) {
-        for (const Property& p : e.properties) {
-          if (p.isList()) {
-            std::uint64_t n = r.readCount(p.countType, p.type, what.c_str());
-            r.skip(p.type, n, what.c_str());
-          } else {
-            r.skip(p.type, 1, what.c_str());
-          }
-        }
-      }
+      skipElement(e, r);
     }
   }
-  if (!sawVertex) throw Error(name + ": PLY file has no vertex element");
-  if (!sawFace) throw Error(name + ": PLY file has no face element");
-  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-    for (std::uint32_t v : mesh.triangles[t]) {
-      if (v >= vertexCount) {
-        throw Error(name + ": PLY face uses vertex index " + std::to_string(v) + " but there are only " +
-                    std::to_string(vertexCount) + " vertices");
-      }
-    }
-  }
+  checkMesh(h, mesh, name);
   return mesh;
 }
 

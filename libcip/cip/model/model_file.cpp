@@ -120,9 +120,15 @@ std::vector<std::uint8_t> serializeModel(const Model& m) {
   return std::move(w.bytes);
 }
 
-Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& name) {
-  Reader r(data, size, name);
-  Model m;
+namespace {
+
+/// The counts of the three tables, each backed by the bytes that remain before anything is allocated.
+struct TableCounts {
+  std::uint64_t vertices = 0, cells = 0, corners = 0;
+};
+
+/// Magic number and version.
+void readPreamble(Reader& r, const std::uint8_t* data, const std::string& name) {
   r.need(sizeof(kMagic), "magic number");
   if (std::memcmp(data, kMagic, sizeof(kMagic)) != 0)
     throw Error(name + ": not a cip model file (bad magic number)");
@@ -132,6 +138,11 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
     throw Error(name + ": model file version " + std::to_string(version) +
                 " is not supported (this build reads " + std::to_string(kModelFileVersion) + ")");
   }
+}
+
+/// Grid geometry, isovalue, normal mode, patch method, reconstruction, the reserved byte and the source
+/// description.
+void readHeaderFields(Reader& r, Model& m) {
   for (int a = 0; a < 3; ++a) {
     auto d = r.get<std::int64_t>("dims");
     if (d < 1 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
@@ -162,80 +173,123 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   r.need(sourceLen, "source description");
   m.source.assign(reinterpret_cast<const char*>(r.here()), sourceLen);
   r.skip(sourceLen);
-  auto numVertices = r.get<std::uint64_t>("vertex count");
-  auto numCells = r.get<std::uint64_t>("cell count");
-  auto numCorners = r.get<std::uint64_t>("corner count");
+}
+
+TableCounts readTableCounts(Reader& r) {
+  TableCounts n;
+  n.vertices = r.get<std::uint64_t>("vertex count");
+  n.cells = r.get<std::uint64_t>("cell count");
+  n.corners = r.get<std::uint64_t>("corner count");
   // Every count must be backed by bytes before anything is allocated.
-  if (numVertices > r.remaining() / kVertexBytes)
-    r.fail("vertex count " + std::to_string(numVertices) + " exceeds the file");
-  if (numCorners > r.remaining() / 4 || numCorners > std::numeric_limits<std::uint32_t>::max())
-    r.fail("corner count " + std::to_string(numCorners) + " exceeds the file");
-  if (numCells > r.remaining() / 35) r.fail("cell count " + std::to_string(numCells) + " exceeds the file");
-  if (numVertices > std::numeric_limits<std::uint32_t>::max()) r.fail("vertex count out of range");
-  m.vertices.resize(numVertices);
+  if (n.vertices > r.remaining() / kVertexBytes)
+    r.fail("vertex count " + std::to_string(n.vertices) + " exceeds the file");
+  if (n.corners > r.remaining() / 4 || n.corners > std::numeric_limits<std::uint32_t>::max())
+    r.fail("corner count " + std::to_string(n.corners) + " exceeds the file");
+  if (n.cells > r.remaining() / 35) r.fail("cell count " + std::to_string(n.cells) + " exceeds the file");
+  if (n.vertices > std::numeric_limits<std::uint32_t>::max()) r.fail("vertex count out of range");
+  return n;
+}
+
+void readVertices(Reader& r, std::uint64_t count, Model& m) {
+  m.vertices.resize(count);
   for (IsoVertex& v : m.vertices) {
     for (int a = 0; a < 3; ++a) v.position[a] = r.getFinite("vertex position");
     for (int a = 0; a < 3; ++a) v.normal[a] = r.getFinite("vertex normal");
     v.weight = r.getFinite("corner coefficient");
     if (std::abs(v.normal.norm() - 1.0) > 1e-6) r.fail("vertex normal is not a unit vector");
   }
-  m.cells.resize(numCells);
-  m.corners.resize(numCorners);
+}
+
+/// The cell's grid index (inside the grid, after the previous cell's: `prevKey`), configuration and loops
+/// (which must be the ones the configuration and face pairing give). Returns those loops.
+CellLoops readCellHead(Reader& r, const Model& m, std::uint64_t ci, std::uint64_t& prevKey, ModelCell& c) {
+  for (int a = 0; a < 3; ++a) {
+    c.index[a] = r.get<std::uint32_t>("cell index");
+    if (c.index[a] + std::int64_t(1) >= m.geometry.dims[a])
+      r.fail("cell " + std::to_string(ci) + " lies outside the grid");
+  }
+  std::uint64_t key =
+      c.index[0] + static_cast<std::uint64_t>(m.geometry.dims[0]) *
+                       (c.index[1] + static_cast<std::uint64_t>(m.geometry.dims[1]) * c.index[2]);
+  if (ci > 0 && key <= prevKey)
+    r.fail("cells are not in increasing grid order at cell " + std::to_string(ci));
+  prevKey = key;
+  c.config = r.get<std::uint8_t>("cell configuration");
+  if (c.config == 0 || c.config == 0xFF) r.fail("cell " + std::to_string(ci) + " has an empty configuration");
+  c.pairing03 = r.get<std::uint8_t>("face pairing");
+  c.numLoops = r.get<std::uint8_t>("loop count");
+  for (auto& s : c.loopSize) s = r.get<std::uint8_t>("loop size");
+  CellLoops expected = buildCellLoops(c.config, c.pairing03);
+  if (c.numLoops != expected.numLoops || c.loopSize != expected.loopSize)
+    r.fail("cell " + std::to_string(ci) + " loops do not match its configuration");
+  return expected;
+}
+
+/// The cell's corners, stored from `c.firstCorner`: indices into the vertex table of vertices that lie on the
+/// cell edge of their loop corner.
+void readCellCorners(Reader& r, Model& m, std::uint64_t ci, const CellLoops& loops, const TableCounts& counts,
+                     const ModelCell& c) {
+  const std::uint64_t first = c.firstCorner;
+  const int n = c.numCorners();
+  if (first + static_cast<std::uint64_t>(n) > counts.corners) r.fail("more corners than the corner count");
+  Vec3 origin(c.index[0], c.index[1], c.index[2]);
+  for (int k = 0; k < n; ++k) {
+    auto vi = r.get<std::uint32_t>("corner index");
+    if (vi >= counts.vertices)
+      r.fail("vertex index " + std::to_string(vi) + " out of range in cell " + std::to_string(ci));
+    // The vertex must lie on the cell edge this corner belongs to.
+    int e = loops.edges[k];
+    Vec3 local = m.vertices[vi].position - origin;
+    auto start = cube::vertexCoords(cube::edgeVertex(e, 0));
+    int axis = cube::edgeAxis(e);
+    for (int a = 0; a < 3; ++a) {
+      bool ok = a == axis ? (local[a] >= 0 && local[a] <= 1) : local[a] == start[a];
+      if (!ok) r.fail("vertex " + std::to_string(vi) + " is not on its edge of cell " + std::to_string(ci));
+    }
+    m.corners[first + k] = vi;
+  }
+}
+
+/// The cell table: per cell its head, corners and coefficients (a side coefficient per crossed face, the
+/// central one).
+void readCells(Reader& r, const TableCounts& counts, Model& m) {
+  m.cells.resize(counts.cells);
+  m.corners.resize(counts.corners);
   std::uint64_t cornersSoFar = 0;
   std::uint64_t prevKey = 0;
-  for (std::uint64_t ci = 0; ci < numCells; ++ci) {
+  for (std::uint64_t ci = 0; ci < counts.cells; ++ci) {
     ModelCell& c = m.cells[ci];
-    for (int a = 0; a < 3; ++a) {
-      c.index[a] = r.get<std::uint32_t>("cell index");
-      if (c.index[a] + std::int64_t(1) >= m.geometry.dims[a])
-        r.fail("cell " + std::to_string(ci) + " lies outside the grid");
-    }
-    std::uint64_t key =
-        c.index[0] + static_cast<std::uint64_t>(m.geometry.dims[0]) *
-                         (c.index[1] + static_cast<std::uint64_t>(m.geometry.dims[1]) * c.index[2]);
-    if (ci > 0 && key <= prevKey)
-      r.fail("cells are not in increasing grid order at cell " + std::to_string(ci));
-    prevKey = key;
-    c.config = r.get<std::uint8_t>("cell configuration");
-    if (c.config == 0 || c.config == 0xFF)
-      r.fail("cell " + std::to_string(ci) + " has an empty configuration");
-    c.pairing03 = r.get<std::uint8_t>("face pairing");
-    c.numLoops = r.get<std::uint8_t>("loop count");
-    for (auto& s : c.loopSize) s = r.get<std::uint8_t>("loop size");
-    CellLoops expected = buildCellLoops(c.config, c.pairing03);
-    if (c.numLoops != expected.numLoops || c.loopSize != expected.loopSize)
-      r.fail("cell " + std::to_string(ci) + " loops do not match its configuration");
+    const CellLoops loops = readCellHead(r, m, ci, prevKey, c);
     c.firstCorner = static_cast<std::uint32_t>(cornersSoFar);
-    int n = c.numCorners();
-    if (cornersSoFar + static_cast<std::uint64_t>(n) > numCorners)
-      r.fail("more corners than the corner count");
-    Vec3 origin(c.index[0], c.index[1], c.index[2]);
-    for (int k = 0; k < n; ++k) {
-      auto vi = r.get<std::uint32_t>("corner index");
-      if (vi >= numVertices)
-        r.fail("vertex index " + std::to_string(vi) + " out of range in cell " + std::to_string(ci));
-      // The vertex must lie on the cell edge this corner belongs to.
-      int e = expected.edges[k];
-      Vec3 local = m.vertices[vi].position - origin;
-      auto start = cube::vertexCoords(cube::edgeVertex(e, 0));
-      int axis = cube::edgeAxis(e);
-      for (int a = 0; a < 3; ++a) {
-        bool ok = a == axis ? (local[a] >= 0 && local[a] <= 1) : local[a] == start[a];
-        if (!ok) r.fail("vertex " + std::to_string(vi) + " is not on its edge of cell " + std::to_string(ci));
-      }
-      m.corners[cornersSoFar + k] = vi;
-    }
-    cornersSoFar += static_cast<std::uint64_t>(n);
+    readCellCorners(r, m, ci, loops, counts, c);
+    cornersSoFar += static_cast<std::uint64_t>(c.numCorners());
     std::uint8_t faces = cube::crossedFaces(c.config);
     for (int f = 0; f < 6; ++f)
       c.faceCoefficient[f] = ((faces >> f) & 1) ? r.getFinite("side coefficient") : 0.0;
     c.central = r.getFinite("central coefficient");
   }
-  if (cornersSoFar != numCorners) r.fail("corner count does not match the cells");
+  if (cornersSoFar != counts.corners) r.fail("corner count does not match the cells");
+}
+
+/// The checksum of everything before it, which must end the file.
+void checkChecksum(Reader& r, const std::uint8_t* data) {
   std::size_t bodyEnd = r.pos();
   auto stored = r.get<std::uint32_t>("checksum");
   if (r.remaining() != 0) r.fail(std::to_string(r.remaining()) + " unexpected bytes after the checksum");
   if (stored != crc(data, bodyEnd)) r.fail("checksum mismatch");
+}
+
+}  // namespace
+
+Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& name) {
+  Reader r(data, size, name);
+  readPreamble(r, data, name);
+  Model m;
+  readHeaderFields(r, m);
+  const TableCounts counts = readTableCounts(r);
+  readVertices(r, counts.vertices, m);
+  readCells(r, counts, m);
+  checkChecksum(r, data);
   return m;
 }
 

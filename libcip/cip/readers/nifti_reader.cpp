@@ -2,6 +2,7 @@
 
 #include <zlib.h>
 
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <memory>
@@ -69,34 +70,31 @@ std::string datatypeName(int code) {
   }
 }
 
-}  // namespace
-
-NiftiHeader parseNiftiHeader(const unsigned char* bytes, std::size_t size) {
-  if (size < kNiftiHeaderBytes) {
-    throw Error("too small for a NIfTI-1 header (" + std::to_string(size) + " of 348 bytes)");
-  }
-  NiftiHeader h;
+/// Whether the header's fields are in the other byte order than the host's (from sizeof_hdr, which must be
+/// 348 in one of the two orders).
+bool headerIsSwapped(const unsigned char* bytes) {
   std::int32_t sizeofHdr;
   std::memcpy(&sizeofHdr, bytes + kSizeofHdr, 4);
-  bool swap = false;
-  if (sizeofHdr != 348) {
-    swap = __builtin_bswap32(static_cast<std::uint32_t>(sizeofHdr)) == 348u;
-    if (!swap) {
-      if (sizeofHdr == 540 || __builtin_bswap32(static_cast<std::uint32_t>(sizeofHdr)) == 540u) {
-        throw Error("NIfTI-2 files are not supported (only NIfTI-1)");
-      }
-      throw Error("not a NIfTI-1 file: sizeof_hdr is " + std::to_string(sizeofHdr) + ", expected 348");
-    }
+  if (sizeofHdr == 348) return false;
+  if (__builtin_bswap32(static_cast<std::uint32_t>(sizeofHdr)) == 348u) return true;
+  if (sizeofHdr == 540 || __builtin_bswap32(static_cast<std::uint32_t>(sizeofHdr)) == 540u) {
+    throw Error("NIfTI-2 files are not supported (only NIfTI-1)");
   }
-  h.endian = (hostEndian() == Endian::Little) != swap ? Endian::Little : Endian::Big;
-  FieldReader f(bytes, swap);
+  throw Error("not a NIfTI-1 file: sizeof_hdr is " + std::to_string(sizeofHdr) + ", expected 348");
+}
+
+/// Accepts the single-file magic "n+1" only.
+void checkMagic(const unsigned char* bytes) {
   const unsigned char* magic = bytes + kMagic;
   if (std::memcmp(magic, "ni1\0", 4) == 0) {
     throw Error(
         "NIfTI-1 header/image pairs (.hdr/.img, magic \"ni1\") are not supported; use a single .nii file");
   }
   if (std::memcmp(magic, "n+1\0", 4) != 0) throw Error("not a NIfTI-1 file: magic is not \"n+1\"");
+}
 
+/// dim[1..3], for a 3-D volume or a 4-D one with a single time point.
+std::array<std::int64_t, 3> readDims(const FieldReader& f) {
   std::int16_t dim[8];
   for (int i = 0; i < 8; ++i) dim[i] = f.get<std::int16_t>(kDim + 2 * static_cast<std::size_t>(i));
   if (dim[0] != 3 && !(dim[0] == 4 && dim[4] == 1)) {
@@ -106,66 +104,85 @@ NiftiHeader parseNiftiHeader(const unsigned char* bytes, std::size_t size) {
     }
     throw Error("NIfTI dim[0] is " + std::to_string(dim[0]) + "; a volume needs 3 (or 4 with dim[4] = 1)");
   }
+  std::array<std::int64_t, 3> dims;
   for (int a = 0; a < 3; ++a) {
     if (dim[a + 1] < 1) {
       throw Error("NIfTI dim[" + std::to_string(a + 1) + "] is " + std::to_string(dim[a + 1]) +
                   " (must be >= 1)");
     }
-    h.dims[a] = dim[a + 1];
+    dims[a] = dim[a + 1];
   }
+  return dims;
+}
 
+/// The sample type from datatype, checked against bitpix (0 = not given).
+SampleType readSampleType(const FieldReader& f) {
+  SampleType type = SampleType::UInt8;
   int datatype = f.get<std::int16_t>(kDatatype);
   switch (datatype) {
     case 2:
-      h.type = SampleType::UInt8;
+      type = SampleType::UInt8;
       break;
     case 4:
-      h.type = SampleType::Int16;
+      type = SampleType::Int16;
       break;
     case 8:
-      h.type = SampleType::Int32;
+      type = SampleType::Int32;
       break;
     case 16:
-      h.type = SampleType::Float32;
+      type = SampleType::Float32;
       break;
     case 64:
-      h.type = SampleType::Float64;
+      type = SampleType::Float64;
       break;
     case 256:
-      h.type = SampleType::Int8;
+      type = SampleType::Int8;
       break;
     case 512:
-      h.type = SampleType::UInt16;
+      type = SampleType::UInt16;
       break;
     case 768:
-      h.type = SampleType::UInt32;
+      type = SampleType::UInt32;
       break;
     default:
       throw Error("NIfTI datatype " + std::to_string(datatype) + " (" + datatypeName(datatype) +
                   ") is not supported (uint8, int8, int16, uint16, int32, uint32, float32, float64 are)");
   }
   int bitpix = f.get<std::int16_t>(kBitpix);
-  if (bitpix != 0 && bitpix != static_cast<int>(8 * sampleSize(h.type))) {
-    throw Error("NIfTI bitpix " + std::to_string(bitpix) + " does not match datatype " + toString(h.type));
+  if (bitpix != 0 && bitpix != static_cast<int>(8 * sampleSize(type))) {
+    throw Error("NIfTI bitpix " + std::to_string(bitpix) + " does not match datatype " + toString(type));
   }
+  return type;
+}
 
+/// |pixdim[1..3]|, each positive and finite.
+Vec3 readSpacing(const FieldReader& f) {
+  Vec3 spacing;
   for (int a = 0; a < 3; ++a) {
     double s = std::abs(static_cast<double>(f.get<float>(kPixdim + 4 * static_cast<std::size_t>(a + 1))));
     if (!(s > 0) || !std::isfinite(s)) {
       throw Error("NIfTI pixdim[" + std::to_string(a + 1) + "] is " + std::to_string(s) +
                   " (spacing must be positive and finite)");
     }
-    h.spacing[a] = s;
+    spacing[a] = s;
   }
+  return spacing;
+}
 
+/// vox_offset: a whole number of bytes, at least the header's.
+std::uint64_t readDataOffset(const FieldReader& f) {
   double voxOffset = f.get<float>(kVoxOffset);
   if (!std::isfinite(voxOffset) || voxOffset < static_cast<double>(kNiftiHeaderBytes) ||
       voxOffset != std::floor(voxOffset) || voxOffset > 9.0e15) {
     throw Error("NIfTI vox_offset " + std::to_string(voxOffset) +
                 " is invalid (must be a whole number >= 348)");
   }
-  h.dataOffset = static_cast<std::uint64_t>(voxOffset);
+  return static_cast<std::uint64_t>(voxOffset);
+}
 
+/// Value scaling (non-finite slope or intercept read as 0), the form codes and the origin they select:
+/// qoffset if qform_code > 0, else the translation column of the srows if sform_code > 0, else 0.
+void readScalingAndOrigin(const FieldReader& f, NiftiHeader& h) {
   h.slope = f.get<float>(kSclSlope);
   h.inter = f.get<float>(kSclInter);
   if (!std::isfinite(h.slope)) h.slope = 0;
@@ -181,6 +198,24 @@ NiftiHeader parseNiftiHeader(const unsigned char* bytes, std::size_t size) {
   for (int a = 0; a < 3; ++a) {
     if (!std::isfinite(h.origin[a])) throw Error("NIfTI origin (qoffset/srow) is not finite");
   }
+}
+
+}  // namespace
+
+NiftiHeader parseNiftiHeader(const unsigned char* bytes, std::size_t size) {
+  if (size < kNiftiHeaderBytes) {
+    throw Error("too small for a NIfTI-1 header (" + std::to_string(size) + " of 348 bytes)");
+  }
+  const bool swap = headerIsSwapped(bytes);
+  NiftiHeader h;
+  h.endian = (hostEndian() == Endian::Little) != swap ? Endian::Little : Endian::Big;
+  checkMagic(bytes);
+  const FieldReader f(bytes, swap);
+  h.dims = readDims(f);
+  h.type = readSampleType(f);
+  h.spacing = readSpacing(f);
+  h.dataOffset = readDataOffset(f);
+  readScalingAndOrigin(f, h);
   return h;
 }
 

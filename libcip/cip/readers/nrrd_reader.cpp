@@ -1,6 +1,7 @@
 #include "cip/readers/nrrd_reader.h"
 
 #include <algorithm>
+#include <array>
 #include <cctype>
 #include <cerrno>
 #include <cmath>
@@ -123,35 +124,78 @@ std::string joinDims(const std::vector<std::int64_t>& sizes) {
   return s;
 }
 
-}  // namespace
+/// A header field's value and the line it stood on.
+struct Field {
+  std::string value;
+  int line;
+};
 
-NrrdHeader parseNrrdHeader(std::string_view text) {
-  NrrdHeader h;
-  // Split into lines up to the first blank line (or the end of the text).
+/// The header's lines read up to the blank line that ends it: the fields by lookup key (fieldKey), the
+/// magic's version, where the header ends and whether a blank line ended it (rather than the end of the
+/// text).
+struct HeaderLines {
+  std::map<std::string, Field> fields;
+  int version = 0;
+  std::size_t headerBytes = 0;
+  bool blank = false;
+
+  const Field* get(const char* key) const {
+    auto it = fields.find(key);
+    return it == fields.end() ? nullptr : &it->second;
+  }
+  const Field& require(const char* key, const char* name) const {
+    const Field* f = get(key);
+    if (!f) throw Error("header has no '" + std::string(name) + "' field");
+    return *f;
+  }
+};
+
+/// The NRRD version from the first line ("NRRD0001" to "NRRD0005", line end excluded).
+int parseMagic(std::string_view firstLine) {
+  std::string_view magic = firstLine.substr(0, 9);
+  if (!magic.empty() && magic.back() == '\r') magic.remove_suffix(1);
+  if (magic.size() != 8 || magic.substr(0, 7) != "NRRD000" || magic[7] < '1' || magic[7] > '5') {
+    std::string shown;
+    for (char c : firstLine.substr(0, 16)) shown += std::isprint(static_cast<unsigned char>(c)) ? c : '?';
+    throw Error("not a NRRD file (starts with '" + shown + "', expected NRRD0001..NRRD0005)");
+  }
+  return magic[7] - '0';
+}
+
+/// Adds the field of one non-blank header line (`raw`, without its line end) to `fields`; comments and
+/// "key:=value" pairs are skipped.
+void addFieldLine(std::string_view raw, int lineNo, std::map<std::string, Field>& fields) {
+  if (raw[0] == '#') return;
+  std::size_t colon = raw.find(": ");
+  std::size_t pair = raw.find(":=");
+  if (pair != std::string_view::npos && pair < colon) return;  // "key:=value" pair: not used
+  if (colon == std::string_view::npos) {
+    if (!raw.empty() && raw.back() == ':') {
+      colon = raw.size() - 1;
+    } else {
+      fail(lineNo, "expected 'field: value', got '" + std::string(raw.substr(0, 80)) + "'");
+    }
+  }
+  std::string key = fieldKey(std::string(raw.substr(0, colon)));
+  std::string value = trim(raw.substr(std::min(raw.size(), colon + 1)));
+  if (key.empty()) fail(lineNo, "empty field name");
+  if (fields.count(key)) fail(lineNo, "field '" + trim(raw.substr(0, colon)) + "' appears twice");
+  fields[key] = Field{value, lineNo};
+}
+
+/// Splits the text into lines up to the first blank line (or the end of the text): the magic line, then
+/// fields.
+HeaderLines readHeaderLines(std::string_view text) {
+  HeaderLines lines;
   std::size_t pos = 0;
   int lineNo = 0;
-  bool blank = false;
-  struct Field {
-    std::string value;
-    int line;
-  };
-  std::map<std::string, Field> fields;
   while (pos < text.size()) {
     std::size_t nl = text.find('\n', pos);
     std::size_t end = nl == std::string_view::npos ? text.size() : nl;
     std::size_t next = nl == std::string_view::npos ? text.size() : nl + 1;
     ++lineNo;
     if (lineNo == 1) {
-      std::string_view magic = text.substr(pos, std::min<std::size_t>(end - pos, 9));
-      if (!magic.empty() && magic.back() == '\r') magic.remove_suffix(1);
-      if (magic.size() != 8 || magic.substr(0, 7) != "NRRD000" || magic[7] < '1' || magic[7] > '5') {
-        std::string shown;
-        for (char c : text.substr(pos, std::min<std::size_t>(end - pos, 16))) {
-          shown += std::isprint(static_cast<unsigned char>(c)) ? c : '?';
-        }
-        throw Error("not a NRRD file (starts with '" + shown + "', expected NRRD0001..NRRD0005)");
-      }
-      h.version = magic[7] - '0';
+      lines.version = parseMagic(text.substr(pos, end - pos));
       pos = next;
       continue;
     }
@@ -167,181 +211,160 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
     pos = next;
     if (raw.find('\0') != std::string_view::npos) fail(lineNo, "binary data in header (missing blank line?)");
     if (raw.empty()) {
-      blank = true;
+      lines.blank = true;
       break;
     }
-    if (raw[0] == '#') continue;
-    std::size_t colon = raw.find(": ");
-    std::size_t pair = raw.find(":=");
-    if (pair != std::string_view::npos && pair < colon) continue;  // "key:=value" pair: not used
-    if (colon == std::string_view::npos) {
-      if (!raw.empty() && raw.back() == ':') {
-        colon = raw.size() - 1;
-      } else {
-        fail(lineNo, "expected 'field: value', got '" + std::string(raw.substr(0, 80)) + "'");
-      }
-    }
-    std::string key = fieldKey(std::string(raw.substr(0, colon)));
-    std::string value = trim(raw.substr(std::min(raw.size(), colon + 1)));
-    if (key.empty()) fail(lineNo, "empty field name");
-    if (fields.count(key)) fail(lineNo, "field '" + trim(raw.substr(0, colon)) + "' appears twice");
-    fields[key] = Field{value, lineNo};
+    addFieldLine(raw, lineNo, lines.fields);
   }
   if (lineNo == 0) throw Error("empty file (not a NRRD file)");
-  h.headerBytes = pos;
+  lines.headerBytes = pos;
+  return lines;
+}
 
-  auto get = [&](const char* key) -> const Field* {
-    auto it = fields.find(key);
-    return it == fields.end() ? nullptr : &it->second;
-  };
-  auto require = [&](const char* key, const char* name) -> const Field& {
-    const Field* f = get(key);
-    if (!f) throw Error("header has no '" + std::string(name) + "' field");
-    return *f;
-  };
-
-  // type
-  {
-    const Field& f = require("type", "type");
-    std::string t = fieldKey(f.value);
-    if (t == "block") fail(f.line, "type 'block' is not supported");
-    if (t.find("64") != std::string::npos || t.find("long") != std::string::npos) {
-      fail(f.line, "type '" + f.value + "' (64-bit integers) is not supported");
-    }
-    try {
-      h.type = parseSampleType(f.value);
-    } catch (const Error& e) {
-      fail(f.line, e.what());
-    }
+/// Fails unless a per-axis field has one entry per axis.
+void expectOneEntryPerAxis(std::size_t entries, int dimension, int line, const std::string& field) {
+  if (static_cast<int>(entries) != dimension) {
+    fail(line,
+         field + " has " + std::to_string(entries) + " entries for dimension " + std::to_string(dimension));
   }
-  // dimension and sizes
-  int dimension = 0;
-  {
-    const Field& f = require("dimension", "dimension");
-    std::int64_t d = parseInteger(f.value, f.line, "dimension");
-    if (d != 3 && d != 4) {
-      fail(f.line, "dimension " + f.value +
-                       " is not supported (a volume needs 3, or 4 with a leading axis of size 1)");
-    }
-    dimension = static_cast<int>(d);
+}
+
+SampleType parseTypeField(const Field& f) {
+  std::string t = fieldKey(f.value);
+  if (t == "block") fail(f.line, "type 'block' is not supported");
+  if (t.find("64") != std::string::npos || t.find("long") != std::string::npos) {
+    fail(f.line, "type '" + f.value + "' (64-bit integers) is not supported");
+  }
+  try {
+    return parseSampleType(f.value);
+  } catch (const Error& e) {
+    fail(f.line, e.what());
+  }
+}
+
+int parseDimensionField(const Field& f) {
+  std::int64_t d = parseInteger(f.value, f.line, "dimension");
+  if (d != 3 && d != 4) {
+    fail(f.line,
+         "dimension " + f.value + " is not supported (a volume needs 3, or 4 with a leading axis of size 1)");
+  }
+  return static_cast<int>(d);
+}
+
+/// The sizes of the three spatial axes (the last three of `dimension`).
+std::array<std::int64_t, 3> parseSizesField(const Field& f, int dimension) {
+  auto t = tokens(f.value);
+  expectOneEntryPerAxis(t.size(), dimension, f.line, "sizes");
+  std::vector<std::int64_t> sizes;
+  for (const auto& s : t) {
+    sizes.push_back(parseInteger(s, f.line, "sizes"));
+    if (sizes.back() < 1) fail(f.line, "sizes: every size must be at least 1, got " + s);
+  }
+  if (dimension == 4 && sizes[0] != 1) {
+    fail(f.line, "4-D volume " + joinDims(sizes) +
+                     " has several values per voxel; only a leading axis of size 1 is supported");
   }
   const int first = dimension - 3;  // index of the first spatial axis
-  {
-    const Field& f = require("sizes", "sizes");
-    auto t = tokens(f.value);
-    if (static_cast<int>(t.size()) != dimension) {
-      fail(f.line,
-           "sizes has " + std::to_string(t.size()) + " entries for dimension " + std::to_string(dimension));
+  return {sizes[first], sizes[first + 1], sizes[first + 2]};
+}
+
+/// The spacing from "space directions": one axis-aligned vector per spatial axis, 'none' for a leading
+/// non-spatial axis.
+void parseSpaceDirections(const Field& f, int dimension, Vec3& spacing) {
+  const int first = dimension - 3;
+  auto t = vectorTokens(f.value, f.line, "space directions");
+  expectOneEntryPerAxis(t.size(), dimension, f.line, "space directions");
+  std::vector<double> v;
+  for (int a = 0; a < 3; ++a) {
+    if (!parseVector(t[first + a], f.line, "space directions", v)) {
+      fail(f.line, "space directions: spatial axis " + std::to_string(a) + " is 'none'");
     }
-    std::vector<std::int64_t> sizes;
-    for (const auto& s : t) {
-      sizes.push_back(parseInteger(s, f.line, "sizes"));
-      if (sizes.back() < 1) fail(f.line, "sizes: every size must be at least 1, got " + s);
+    if (v.size() != 3) fail(f.line, "space directions: vectors must have 3 components, got " + t[first + a]);
+    double length = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    if (!std::isfinite(length) || length <= 0) {
+      fail(f.line, "space directions: axis " + std::to_string(a) + " has a zero or invalid length");
     }
-    if (dimension == 4 && sizes[0] != 1) {
-      fail(f.line, "4-D volume " + joinDims(sizes) +
-                       " has several values per voxel; only a leading axis of size 1 is supported");
-    }
-    for (int a = 0; a < 3; ++a) h.dims[a] = sizes[first + a];
-  }
-  // spacing: space directions or spacings
-  const Field* dirs = get("spacedirections");
-  const Field* spacings = get("spacings");
-  if (dirs) {
-    auto t = vectorTokens(dirs->value, dirs->line, "space directions");
-    if (static_cast<int>(t.size()) != dimension) {
-      fail(dirs->line, "space directions has " + std::to_string(t.size()) + " entries for dimension " +
-                           std::to_string(dimension));
-    }
-    std::vector<double> v;
-    for (int a = 0; a < 3; ++a) {
-      if (!parseVector(t[first + a], dirs->line, "space directions", v)) {
-        fail(dirs->line, "space directions: spatial axis " + std::to_string(a) + " is 'none'");
+    for (int b = 0; b < 3; ++b) {
+      if (b != a && std::abs(v[b]) > 1e-9 * length) {
+        fail(f.line, "space directions are rotated or sheared (axis " + std::to_string(a) + " is " +
+                         t[first + a] + "); only axis-aligned volumes are supported");
       }
-      if (v.size() != 3) {
-        fail(dirs->line, "space directions: vectors must have 3 components, got " + t[first + a]);
-      }
-      double length = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-      if (!std::isfinite(length) || length <= 0) {
-        fail(dirs->line, "space directions: axis " + std::to_string(a) + " has a zero or invalid length");
-      }
-      for (int b = 0; b < 3; ++b) {
-        if (b != a && std::abs(v[b]) > 1e-9 * length) {
-          fail(dirs->line, "space directions are rotated or sheared (axis " + std::to_string(a) + " is " +
-                               t[first + a] + "); only axis-aligned volumes are supported");
-        }
-      }
-      h.spacing[a] = std::abs(v[a]);
     }
-    if (dimension == 4 && t[0] != "none")
-      fail(dirs->line, "space directions: the non-spatial axis must be 'none'");
-  } else if (spacings) {
-    auto t = tokens(spacings->value);
-    if (static_cast<int>(t.size()) != dimension) {
-      fail(spacings->line, "spacings has " + std::to_string(t.size()) + " entries for dimension " +
-                               std::to_string(dimension));
-    }
-    for (int a = 0; a < 3; ++a) {
-      double s = parseNumber(t[first + a], spacings->line, "spacings");
-      if (std::isnan(s)) continue;  // unknown spacing: keep 1
-      if (!std::isfinite(s) || s == 0)
-        fail(spacings->line, "spacings: '" + t[first + a] + "' is not a valid spacing");
-      h.spacing[a] = std::abs(s);
-    }
+    spacing[a] = std::abs(v[a]);
   }
-  if (const Field* f = get("spaceorigin")) {
-    auto t = vectorTokens(f->value, f->line, "space origin");
-    std::vector<double> v;
-    if (t.size() != 1 || !parseVector(t[0], f->line, "space origin", v) || v.size() != 3) {
-      fail(f->line, "space origin: expected a 3-vector like (0,0,0), got '" + f->value + "'");
-    }
-    for (int a = 0; a < 3; ++a) {
-      if (!std::isfinite(v[a])) fail(f->line, "space origin: components must be finite");
-      h.origin[a] = v[a];
-    }
+  if (dimension == 4 && t[0] != "none") fail(f.line, "space directions: the non-spatial axis must be 'none'");
+}
+
+/// The spacing from "spacings" ('nan' keeps an axis' spacing).
+void parseSpacings(const Field& f, int dimension, Vec3& spacing) {
+  const int first = dimension - 3;
+  auto t = tokens(f.value);
+  expectOneEntryPerAxis(t.size(), dimension, f.line, "spacings");
+  for (int a = 0; a < 3; ++a) {
+    double s = parseNumber(t[first + a], f.line, "spacings");
+    if (std::isnan(s)) continue;  // unknown spacing: keep 1
+    if (!std::isfinite(s) || s == 0) fail(f.line, "spacings: '" + t[first + a] + "' is not a valid spacing");
+    spacing[a] = std::abs(s);
   }
-  // encoding
-  {
-    const Field& f = require("encoding", "encoding");
-    std::string e = fieldKey(f.value);
-    if (e == "raw") {
-      h.encoding = NrrdEncoding::Raw;
-    } else if (e == "gzip" || e == "gz") {
-      h.encoding = NrrdEncoding::Gzip;
-    } else if (e == "ascii" || e == "text" || e == "txt") {
-      h.encoding = NrrdEncoding::Ascii;
-    } else if (e == "hex" || e == "bzip2" || e == "bz2") {
-      fail(f.line, "encoding '" + f.value + "' is not supported (raw, gzip and ascii are)");
-    } else {
-      fail(f.line, "unknown encoding '" + f.value + "'");
-    }
+}
+
+Vec3 parseSpaceOrigin(const Field& f) {
+  auto t = vectorTokens(f.value, f.line, "space origin");
+  std::vector<double> v;
+  if (t.size() != 1 || !parseVector(t[0], f.line, "space origin", v) || v.size() != 3) {
+    fail(f.line, "space origin: expected a 3-vector like (0,0,0), got '" + f.value + "'");
   }
-  // endian
-  if (const Field* f = get("endian")) {
-    try {
-      h.endian = parseEndian(f->value);
-    } catch (const Error& e) {
-      fail(f->line, e.what());
-    }
-  } else if (sampleSize(h.type) > 1 && h.encoding != NrrdEncoding::Ascii) {
-    throw Error("header has no 'endian' field, needed for " + std::string(toString(h.type)) + " samples");
+  Vec3 origin;
+  for (int a = 0; a < 3; ++a) {
+    if (!std::isfinite(v[a])) fail(f.line, "space origin: components must be finite");
+    origin[a] = v[a];
   }
-  // data location
-  if (const Field* f = get("datafile")) {
+  return origin;
+}
+
+/// Type, dimension and sizes; then the spacing ("space directions", else "spacings") and the origin.
+void parseGridFields(const HeaderLines& lines, NrrdHeader& h) {
+  h.type = parseTypeField(lines.require("type", "type"));
+  const int dimension = parseDimensionField(lines.require("dimension", "dimension"));
+  h.dims = parseSizesField(lines.require("sizes", "sizes"), dimension);
+  if (const Field* dirs = lines.get("spacedirections")) {
+    parseSpaceDirections(*dirs, dimension, h.spacing);
+  } else if (const Field* spacings = lines.get("spacings")) {
+    parseSpacings(*spacings, dimension, h.spacing);
+  }
+  if (const Field* f = lines.get("spaceorigin")) h.origin = parseSpaceOrigin(*f);
+}
+
+NrrdEncoding parseEncodingField(const Field& f) {
+  std::string e = fieldKey(f.value);
+  if (e == "raw") return NrrdEncoding::Raw;
+  if (e == "gzip" || e == "gz") return NrrdEncoding::Gzip;
+  if (e == "ascii" || e == "text" || e == "txt") return NrrdEncoding::Ascii;
+  if (e == "hex" || e == "bzip2" || e == "bz2") {
+    fail(f.line, "encoding '" + f.value + "' is not supported (raw, gzip and ascii are)");
+  }
+  fail(f.line, "unknown encoding '" + f.value + "'");
+}
+
+/// "data file": one file name (attached data when absent, which needs the blank line).
+void parseDataFile(const HeaderLines& lines, NrrdHeader& h) {
+  if (const Field* f = lines.get("datafile")) {
     auto t = tokens(f->value);
     if (f->value.empty()) fail(f->line, "data file: empty file name");
-    if (!t.empty() && t[0] == "LIST") {
-      fail(f->line, "data file: LIST (several data files) is not supported");
-    }
+    if (!t.empty() && t[0] == "LIST") fail(f->line, "data file: LIST (several data files) is not supported");
     if (t.size() >= 4 && t[0].find('%') != std::string::npos) {
       fail(f->line, "data file: several numbered data files are not supported");
     }
     h.dataFile = f->value;
-  } else if (!blank) {
+  } else if (!lines.blank) {
     throw Error("header has no 'data file' field and no blank line before attached data");
   }
   h.attached = h.dataFile.empty();
-  if (const Field* f = get("byteskip")) {
+}
+
+/// "byte skip" and "line skip", checked against the encoding.
+void parseSkips(const HeaderLines& lines, NrrdHeader& h) {
+  if (const Field* f = lines.get("byteskip")) {
     h.byteSkip = parseInteger(f->value, f->line, "byte skip");
     if (h.byteSkip < -1) fail(f->line, "byte skip must be -1 or more");
     if (h.byteSkip == -1 && h.encoding != NrrdEncoding::Raw) fail(f->line, "byte skip -1 needs raw encoding");
@@ -351,10 +374,37 @@ NrrdHeader parseNrrdHeader(std::string_view text) {
       fail(f->line, "byte skip " + f->value + " is too large for compressed data (at most 1 GiB)");
     }
   }
-  if (const Field* f = get("lineskip")) {
+  if (const Field* f = lines.get("lineskip")) {
     h.lineSkip = parseInteger(f->value, f->line, "line skip");
     if (h.lineSkip < 0) fail(f->line, "line skip must be 0 or more");
   }
+}
+
+/// Encoding and endianness (needed for binary samples wider than a byte); then where the data is.
+void parseDataFields(const HeaderLines& lines, NrrdHeader& h) {
+  h.encoding = parseEncodingField(lines.require("encoding", "encoding"));
+  if (const Field* f = lines.get("endian")) {
+    try {
+      h.endian = parseEndian(f->value);
+    } catch (const Error& e) {
+      fail(f->line, e.what());
+    }
+  } else if (sampleSize(h.type) > 1 && h.encoding != NrrdEncoding::Ascii) {
+    throw Error("header has no 'endian' field, needed for " + std::string(toString(h.type)) + " samples");
+  }
+  parseDataFile(lines, h);
+  parseSkips(lines, h);
+}
+
+}  // namespace
+
+NrrdHeader parseNrrdHeader(std::string_view text) {
+  const HeaderLines lines = readHeaderLines(text);
+  NrrdHeader h;
+  h.version = lines.version;
+  h.headerBytes = lines.headerBytes;
+  parseGridFields(lines, h);
+  parseDataFields(lines, h);
   return h;
 }
 
