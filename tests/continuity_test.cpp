@@ -9,14 +9,14 @@
 #include "cip/model/model_builder.h"
 #include "cip/topology/cube_topology.h"
 #include "cip/volume/analytic_field.h"
+#include "support/join_tolerances.h"
 #include "support/random_volume.h"
 
 using namespace cip;
 
-// Tolerances: a boundary point of one cell is within 1e-9 voxel of the neighbour's zero set and the two
-// normals agree within 1e-6 rad; both are far above rounding (~1e-14) and far below any real mismatch (a
-// crack would be ~1e-3 voxel and more).
-constexpr double kMaxGap = 1e-9, kMaxAngle = 1e-6;
+// Tolerances: rounding only (support/join_tolerances.h derives them).
+using test::kJoinAngle;
+using test::kJoinGap;
 // Sample lines per face axis: 14 gives thousands of boundary-curve points per volume while keeping the
 // sanitizer build's run short.
 constexpr int kFaceSamples = 14;
@@ -25,6 +25,31 @@ constexpr int kFaceSamples = 14;
 using ModeAndMethod = std::tuple<NormalMode, PatchMethod>;
 std::string modeAndMethodName(const ::testing::TestParamInfo<ModeAndMethod>& param) {
   return std::string(toString(std::get<0>(param.param))) + "_" + toString(std::get<1>(param.param));
+}
+
+/// Grid faces between two cells of the volume with a crossed edge (their four samples not all on one side of
+/// the isovalue), counted from the samples: the face pairs measureContinuity should compare.
+int facesWithACrossing(const DenseGrid& g, double isovalue) {
+  const auto& d = g.geometry.dims;
+  int faces = 0;
+  for (int axis = 0; axis < 3; ++axis) {
+    const auto uv = cube::otherAxes(axis);
+    std::array<std::int64_t, 3> p{};
+    // The face at p[axis] between cells p[axis] - 1 and p[axis], its lowest point p.
+    for (p[axis] = 1; p[axis] + 1 < d[axis]; ++p[axis])
+      for (p[uv[0]] = 0; p[uv[0]] + 1 < d[uv[0]]; ++p[uv[0]])
+        for (p[uv[1]] = 0; p[uv[1]] + 1 < d[uv[1]]; ++p[uv[1]]) {
+          int above = 0;
+          for (int k = 0; k < 4; ++k) {
+            std::array<std::int64_t, 3> q = p;
+            q[uv[0]] += k & 1;
+            q[uv[1]] += k >> 1;
+            above += g.at(q[0], q[1], q[2]) > isovalue;
+          }
+          faces += above != 0 && above != 4;
+        }
+  }
+  return faces;
 }
 
 class ContinuityOnRandomVolumes : public ::testing::TestWithParam<ModeAndMethod> {};
@@ -45,10 +70,10 @@ TEST_P(ContinuityOnRandomVolumes, NeighboursShareZeroSetAndNormals) {
     ContinuityStats s = measureContinuity(m, kFaceSamples);
     std::printf("seed %u: %d face pairs, %d curve points, max gap %.3g voxel, max normal angle %.3g rad\n",
                 seed, s.facePairs, s.curvePoints, s.maxGap, s.maxAngle);
-    EXPECT_GT(s.facePairs, 300);
+    EXPECT_EQ(s.facePairs, facesWithACrossing(g, o.isovalue));
     EXPECT_GT(s.curvePoints, 3000);
-    EXPECT_LT(s.maxGap, kMaxGap) << "seed " << seed;
-    EXPECT_LT(s.maxAngle, kMaxAngle) << "seed " << seed;
+    EXPECT_LT(s.maxGap, kJoinGap) << "seed " << seed;
+    EXPECT_LT(s.maxAngle, kJoinAngle) << "seed " << seed;
     EXPECT_EQ(s.signDisagreements, 0) << "seed " << seed;
   }
 }
@@ -70,8 +95,8 @@ TEST_P(ContinuityExactGyroid, NeighboursShareZeroSetAndNormals) {
   Model m = buildModel(g, o);
   ContinuityStats s = measureContinuity(m, kFaceSamples);
   EXPECT_GT(s.curvePoints, 1000);
-  EXPECT_LT(s.maxGap, kMaxGap);
-  EXPECT_LT(s.maxAngle, kMaxAngle);
+  EXPECT_LT(s.maxGap, kJoinGap);
+  EXPECT_LT(s.maxAngle, kJoinAngle);
   EXPECT_EQ(s.signDisagreements, 0);
 }
 

@@ -176,13 +176,53 @@ TEST(MarchingCubes, GyroidInABoxIsClosed) {
   }
 }
 
+// The volume's border cuts the gyroid: the mesh's boundary edges (used by one triangle) must all lie on the
+// border, each in one of its planes, and they are the marching-squares segments of the border's cell faces:
+// one per two crossed edges of each such face, counted from the samples.
 TEST(MarchingCubes, OpenSurfaceHasBoundaryOnlyAtTheVolumeBorder) {
+  const auto field = makeAnalyticField("gyroid");
+  const DenseGrid grid = sampleField(*field, 16, "gyroid");
   Model model = fieldModel("gyroid", 16);
   TriangleMesh mesh = marchingCubes(model);
   MeshTopology topo = analyseTopology(mesh);
-  EXPECT_GT(topo.boundaryEdges, 0u);
   EXPECT_EQ(topo.nonManifoldEdges, 0u);
   EXPECT_EQ(topo.misorientedEdges, 0u);
+  std::map<std::pair<std::uint32_t, std::uint32_t>, int> uses;
+  for (const auto& t : mesh.triangles)
+    for (int k = 0; k < 3; ++k) ++uses[std::minmax(t[k], t[(k + 1) % 3])];
+  const auto& dims = grid.geometry.dims;
+  std::size_t boundary = 0;
+  for (const auto& [edge, n] : uses) {
+    if (n != 1) continue;
+    ++boundary;
+    const Vec3 a = model.geometry.worldToIndex(mesh.positions[edge.first]);
+    const Vec3 b = model.geometry.worldToIndex(mesh.positions[edge.second]);
+    bool onBorder = false;  // both ends in the same border plane
+    for (int axis = 0; axis < 3; ++axis)
+      for (double plane : {0.0, static_cast<double>(dims[axis] - 1)})
+        onBorder = onBorder || (std::abs(a[axis] - plane) < 1e-9 && std::abs(b[axis] - plane) < 1e-9);
+    EXPECT_TRUE(onBorder) << "boundary edge from " << a.transpose() << " to " << b.transpose();
+  }
+  EXPECT_EQ(boundary, topo.boundaryEdges);
+  std::size_t crossings = 0;  // crossed edges of the border's cell faces, counted once for each such face
+  for (int axis = 0; axis < 3; ++axis) {
+    const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+    for (std::int64_t side : {std::int64_t{0}, dims[axis] - 1})
+      for (std::int64_t i = 0; i + 1 < dims[u]; ++i)
+        for (std::int64_t j = 0; j + 1 < dims[v]; ++j) {
+          auto above = [&](std::int64_t du, std::int64_t dv) {
+            std::array<std::int64_t, 3> p{};
+            p[axis] = side;
+            p[u] = i + du;
+            p[v] = j + dv;
+            return grid.at(p[0], p[1], p[2]) > model.isovalue;
+          };
+          crossings += (above(0, 0) != above(1, 0)) + (above(0, 1) != above(1, 1)) +
+                       (above(0, 0) != above(0, 1)) + (above(1, 0) != above(1, 1));
+        }
+  }
+  EXPECT_GT(crossings, 0u);
+  EXPECT_EQ(boundary, crossings / 2);
 }
 
 TEST(MarchingCubes, RandomVolumesAreClosed) {
