@@ -13,6 +13,7 @@
 #include "cip/model/model_builder.h"
 #include "cip/volume/analytic_field.h"
 #include "support/random_volume.h"
+#include "support/scratch_dir.h"
 
 using namespace cip;
 
@@ -50,7 +51,8 @@ std::size_t countsOffset(const Model& m) {
 TEST(ModelFile, RoundTripIsIdentical) {
   Model m = sampleModel();
   ASSERT_GT(m.cells.size(), 100u);
-  std::string path = (std::filesystem::temp_directory_path() / "cip_roundtrip.cip").string();
+  test::ScratchDir dir;
+  std::string path = dir.file("roundtrip.cip");
   std::size_t written = writeModel(m, path);
   EXPECT_EQ(written, std::filesystem::file_size(path));
   Model r = readModel(path);
@@ -140,8 +142,8 @@ TEST(ModelFile, OutOfRangeFieldsAreRejectedEvenWithAValidChecksum) {
 }
 
 TEST(ModelFile, WriteIsAtomicAndFailureLeavesPreviousFile) {
-  std::string dir = (std::filesystem::temp_directory_path() / "cip_atomic_test").string();
-  std::filesystem::create_directories(dir);
+  test::ScratchDir scratch;
+  const std::string& dir = scratch.path();
   std::string path = dir + "/m.cip";
   { std::ofstream(path) << "previous contents"; }
   EXPECT_THROW(writeModel(sampleModel(), dir + "/missing-dir/m.cip"), Error);
@@ -154,7 +156,6 @@ TEST(ModelFile, WriteIsAtomicAndFailureLeavesPreviousFile) {
   std::size_t files = 0;
   for (auto& e : std::filesystem::directory_iterator(dir)) files += e.is_regular_file();
   EXPECT_EQ(files, 1u) << "no temporary file left behind";
-  std::filesystem::remove_all(dir);
 }
 
 TEST(ModelBuilder, IdenticalBytesForAnyThreadCount) {
