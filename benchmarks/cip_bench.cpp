@@ -2,7 +2,9 @@
 // comes from runs made side by side in the same invocation. Driven by benchmarks/run.py; usable alone:
 //   cip_bench extraction --csv extraction.csv [--quick] [--shared-data ../shared/data]
 //   cip_bench fidelity   --csv fidelity.csv   [--quick]
-//   cip_bench method     [--quick] [--shared-data ../shared/data]   (the tables of docs/method.md)
+//   cip_bench method     [--quick] [--shared-data ../shared/data] [--table NAME]... [--single-build]
+//                        [--rows REGEX]...
+//                        (the tables of docs/method.md)
 #include <malloc.h>
 #include <tbb/info.h>
 
@@ -279,13 +281,21 @@ int main(int argc, char** argv) {
   fi->add_option("--csv", csv, "output CSV")->required();
   fi->add_flag("--quick", quick, "small sizes only");
   auto* me = app.add_subcommand("method", "the measured tables of docs/method.md (Markdown on stdout)");
-  me->add_option("--shared-data", shared, "folder with the real volumes");
-  me->add_flag("--quick", quick, "N = 16 and the nucleon only");
+  cipbench::MethodTableOptions method;
+  me->add_option("--shared-data", method.sharedData, "folder with the real volumes");
+  me->add_flag("--quick", method.quick, "N = 16 and the nucleon only");
+  me->add_option("--table", method.tables,
+                 "only this table (repeatable): analytic, real, reconstruction, aliasing, open-faces");
+  me->add_flag("--single-build", method.singleBuild,
+               "build each model once (same figures; the times are of one build, not the best of several)");
+  me->add_option("--rows", method.rows,
+                 "only the cases whose name matches this regular expression (repeatable: all of them), "
+                 "e.g. --rows '32|nucleon'");
   CLI11_PARSE(app, argc, argv);
   try {
     if (*ex) extraction(csv, quick, shared);
     if (*fi) fidelity(csv, quick);
-    if (*me) cipbench::methodTables(shared, quick);
+    if (*me) cipbench::methodTables(method);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "cip_bench: error: %s\n", e.what());
     return 1;

@@ -10,9 +10,11 @@
 #include <filesystem>
 #include <functional>
 #include <memory>
+#include <regex>
 #include <string>
 #include <vector>
 
+#include "cip/core/error.h"
 #include "cip/measure/surface_fidelity.h"
 #include "cip/mesh/marching_cubes.h"
 #include "cip/model/model_builder.h"
@@ -44,6 +46,17 @@ struct Both {
   cip::Model paper, fitted;
   double paperMs = 1e300, fittedMs = 1e300;
 };
+/// With --single-build each model is built once (the models are the same; only the times are not best-of).
+bool gSingleBuild = false;
+/// With --rows, only the cases whose name ("torus 32 gradient", "headsq.nhdr 1150", "marschner-lobb 32")
+/// every expression finds.
+std::vector<std::regex> gRows;
+
+bool wanted(const std::string& caseName) {
+  return std::all_of(gRows.begin(), gRows.end(),
+                     [&](const std::regex& r) { return std::regex_search(caseName, r); });
+}
+
 Both buildBoth(const cip::DenseGrid& grid, cip::BuildOptions o) {
   Both both;
   o.threads = 1;
@@ -54,7 +67,8 @@ Both buildBoth(const cip::DenseGrid& grid, cip::BuildOptions o) {
   for (int r = 0; r < rounds; ++r) {
     both.paperMs = std::min(both.paperMs, elapsedMs([&] { both.paper = cip::buildModel(grid, paper); }));
     both.fittedMs = std::min(both.fittedMs, elapsedMs([&] { both.fitted = cip::buildModel(grid, fitted); }));
-    if (r == 0) rounds = std::clamp(static_cast<int>(250 / (both.paperMs + both.fittedMs)), 5, 25);
+    if (r == 0)
+      rounds = gSingleBuild ? 1 : std::clamp(static_cast<int>(250 / (both.paperMs + both.fittedMs)), 5, 25);
   }
   return both;
 }
@@ -88,6 +102,7 @@ void forEachAnalyticCase(bool quick, Fn&& fn) {
   for (const std::string& name : names)
     for (int n : quick ? std::vector<int>{16} : std::vector<int>{32, 64})
       for (cip::NormalMode mode : {cip::NormalMode::Gradient, cip::NormalMode::Exact}) {
+        if (!wanted(name + " " + std::to_string(n) + " " + cip::toString(mode))) continue;
         auto field = cip::makeAnalyticField(name);
         const cip::DenseGrid grid = cip::sampleField(*field, n, name);
         cip::BuildOptions o;
@@ -114,7 +129,9 @@ void forEachRealCase(const std::string& shared, bool quick, Fn&& fn) {
   if (quick) cases.resize(1);
   for (const Case& c : cases) {
     const std::string path = shared + "/" + c.file;
-    if (!std::filesystem::exists(path)) continue;
+    char name[128];
+    std::snprintf(name, sizeof name, "%s %g", c.file, c.iso);
+    if (!wanted(name) || !std::filesystem::exists(path)) continue;
     cip::VolumeReadOptions read;
     read.brickCells = 1 << 20;
     const cip::SparseVolume volume = cip::readVolume(path, read);
@@ -173,7 +190,7 @@ void analyticTable(bool quick) {
 
 void realTable(const std::string& shared, bool quick) {
   std::printf(
-      "\n| volume, isovalue | cells | paper wrong-sign cells | **fitted wrong-sign cells** (8³ / 16³) "
+      "| volume, isovalue | cells | paper wrong-sign cells | **fitted wrong-sign cells** (8³ / 16³) "
       "| fitted dist / normal vs the interpolant | blended isovertices, unresolved cells "
       "| reference (auto: effective wavelength) | time paper → fitted |\n"
       "|---|---|---|---|---|---|---|---|\n");
@@ -205,7 +222,7 @@ void realTable(const std::string& shared, bool quick) {
 /// time.
 void reconstructionTable(const std::string& shared, bool quick) {
   std::printf(
-      "\n| data, reconstruction | MC facet normal | wrong-sign cells (8³ / 16³) | dist | normal (p99) "
+      "| data, reconstruction | MC facet normal | wrong-sign cells (8³ / 16³) | dist | normal (p99) "
       "| reference normal | blended isovertices, unresolved cells | time fitted (× paper) |\n"
       "|---|---|---|---|---|---|---|---|\n");
   struct Case {
@@ -218,6 +235,9 @@ void reconstructionTable(const std::string& shared, bool quick) {
                              {"nucleon.nhdr", 0, 128},  {"tooth.nhdr", 0, 120},    {"headsq.nhdr", 0, 1150}};
   if (quick) cases = {{"torus", 16, 0}, {"nucleon.nhdr", 0, 128}};
   for (const Case& c : cases) {
+    const std::string label = c.n > 0 ? c.source + " " + std::to_string(c.n)
+                                      : c.source + " " + std::to_string(static_cast<int>(c.iso));
+    if (!wanted(label)) continue;
     std::unique_ptr<cip::AnalyticField> field;
     cip::DenseGrid grid;
     double iso = c.iso;
@@ -244,8 +264,6 @@ void reconstructionTable(const std::string& shared, bool quick) {
       const auto f = cip::measureFidelity(samples, truth, iso, voxel, false);
       const auto mc = cip::measureFidelity(cip::sampleMeshSurface(cip::marchingCubes(paper), paper, 4, false),
                                            truth, iso, voxel, false);
-      const std::string label = c.n > 0 ? c.source + " " + std::to_string(c.n)
-                                        : c.source + " " + std::to_string(static_cast<int>(iso));
       const std::string referenceNormal =
           field ? std::to_string(referenceNormalError(samples, *field, reference, iso)).substr(0, 5) : "–";
       std::printf("| %s, %s | %.2f | %lld / %lld | %.4f | %.2f (%.1f) | %s | %zu, %zu | %.1f ms (%.1f×) |\n",
@@ -268,12 +286,13 @@ void aliasingTable(bool quick) {
   constexpr std::array<double, 3> kEdges{0.7, 0.85, 1.0};
   constexpr std::size_t kBins = kEdges.size() + 1;
   std::printf(
-      "\n| Marschner–Lobb, N, normals | ripple frequency / Nyquist < 0.7 | 0.7–0.85 | 0.85–1 | > 1 (aliased) "
+      "| Marschner–Lobb, N, normals | ripple frequency / Nyquist < 0.7 | 0.7–0.85 | 0.85–1 | > 1 (aliased) "
       "| all "
       "|\n|---|---|---|---|---|---|\n");
   auto field = cip::makeAnalyticField("marschner-lobb");
   const double iso = field->defaultIsovalue();
   for (int n : quick ? std::vector<int>{16} : std::vector<int>{32, 64}) {
+    if (!wanted("marschner-lobb " + std::to_string(n))) continue;
     const cip::DenseGrid grid = cip::sampleField(*field, n, "marschner-lobb");
     const double spacing = grid.geometry.spacing.x(), nyquist = 1 / (2 * spacing);
     // The mean normal error per bin of the ripple's frequency at the sample (and the bin's share of the
@@ -332,7 +351,7 @@ void aliasingTable(bool quick) {
 /// mode; the real volumes as the second table reads them). Marching cubes has none by construction.
 void openFaceTable(const std::string& shared, bool quick) {
   std::printf(
-      "\n| data | cells | paper: cells leaking through an open face | **fitted** |\n"
+      "| data | cells | paper: cells leaking through an open face | **fitted** |\n"
       "|---|---|---|---|\n");
   auto row = [](const std::string& name, const cip::DenseGrid& grid, cip::BuildOptions o) {
     o.method = cip::PatchMethod::Paper;
@@ -361,12 +380,40 @@ void openFaceTable(const std::string& shared, bool quick) {
 
 }  // namespace
 
-void methodTables(const std::string& sharedData, bool quick) {
-  analyticTable(quick);
-  realTable(sharedData, quick);
-  reconstructionTable(sharedData, quick);
-  aliasingTable(quick);
-  openFaceTable(sharedData, quick);
+const std::vector<std::string>& methodTableNames() {
+  static const std::vector<std::string> names{"analytic", "real", "reconstruction", "aliasing", "open-faces"};
+  return names;
+}
+
+void methodTables(const MethodTableOptions& options) {
+  const std::vector<std::string>& names = methodTableNames();
+  for (const std::string& t : options.tables)
+    if (std::find(names.begin(), names.end(), t) == names.end())
+      throw cip::Error("unknown table '" + t + "' (analytic, real, reconstruction, aliasing, open-faces)");
+  gSingleBuild = options.singleBuild;
+  gRows.clear();
+  for (const std::string& r : options.rows) {
+    try {
+      gRows.emplace_back(r);
+    } catch (const std::regex_error& e) {
+      throw cip::Error("--rows '" + r + "' is not a regular expression: " + e.what());
+    }
+  }
+  const std::string& shared = options.sharedData;
+  const bool quick = options.quick;
+  const std::vector<std::function<void()>> print{
+      [&] { analyticTable(quick); }, [&] { realTable(shared, quick); },
+      [&] { reconstructionTable(shared, quick); }, [&] { aliasingTable(quick); },
+      [&] { openFaceTable(shared, quick); }};
+  bool first = true;
+  for (std::size_t t = 0; t < names.size(); ++t) {
+    if (!options.tables.empty() &&
+        std::find(options.tables.begin(), options.tables.end(), names[t]) == options.tables.end())
+      continue;
+    if (!first) std::printf("\n");
+    first = false;
+    print[t]();
+  }
 }
 
 }  // namespace cipbench

@@ -1,12 +1,18 @@
-// The extract command's run statistics (--stats-json), its report of the fitted construction's fallback, and
-// its choice of reference reconstruction.
+// The extract command's run statistics (--stats-json), its report of the fitted construction's fallback, its
+// choice of reference reconstruction, the meshes it writes (--mc-mesh, --patch-mesh, --subdiv), its
+// independence of --threads and its choice of an OpenVDB grid (--grid). Each test in a folder of its own.
 #include <gtest/gtest.h>
 
 #include <string>
+#include <vector>
 
+#include "cip/mesh/marching_cubes.h"
+#include "cip/mesh/patch_mesh.h"
+#include "cip/mesh/ply.h"
 #include "cip/model/model_builder.h"
 #include "cip/model/model_file.h"
 #include "cip/model/patch_fitting.h"
+#include "cip/readers/vdb_reader.h"
 #include "cip/readers/volume_reader.h"
 #include "cip/volume/analytic_field.h"
 #include "support/command_line.h"
@@ -17,6 +23,24 @@ using namespace cip;
 namespace {
 
 const std::string kExtract = std::string(CIP_BINARY_DIR) + "/extract/extract";
+
+/// The model the library builds from an analytic field sampled as extract samples it (fitted, gradient
+/// normals), with the given reconstruction.
+Model libraryModel(const std::string& name, int n, Reconstruction reconstruction) {
+  auto field = makeAnalyticField(name);
+  BuildOptions o;
+  o.isovalue = field->defaultIsovalue();
+  o.reconstruction = reconstruction;
+  return buildModel(sampleField(*field, n, name), o);
+}
+
+/// The model's numbers as the file stores them, without the header's record of the reconstruction and the
+/// source text: equal for two models exactly when their isovertices, cells and coefficients are.
+std::vector<std::uint8_t> numbersOf(Model m) {
+  m.reconstruction.reset();
+  m.source.clear();
+  return serializeModel(m);
+}
 
 }  // namespace
 
@@ -77,50 +101,57 @@ TEST(ExtractCli, StatsReportTheFittedFallback) {
   EXPECT_EQ(r.err.find("cells have no coefficient"), std::string::npos) << r.err;
 }
 
-// --reconstruction reaches the build (the model is the library's with that reconstruction, different from the
-// default's) and the stats file; an unknown name, or a build that has no reference of the samples, is
-// refused.
+// --reconstruction reaches the build: each file holds the library's model for the reconstruction asked for,
+// number for number, and says which it followed; the stats file records it. On the torus at N = 32 `auto`
+// picks central8, and monotone's numbers differ from it, so a flag that did not reach the build (or reached
+// only the header) fails. An unknown name, or a build that has no reference of the samples, is refused.
 TEST(ExtractCli, ReconstructionChoosesTheReference) {
   test::ScratchDir dir;
-  const std::string central8 = dir.file("c.cip"), monotone = dir.file("m.cip"), json = dir.file("s.json");
-  auto r = test::run(kExtract + " torus --resolution 16 --reconstruction central8 -o " + central8 +
-                     " --stats-json " + json);
-  ASSERT_EQ(r.status, 0) << r.err;
-  EXPECT_EQ(r.err.find("too steep"), std::string::npos) << r.err;  // smooth data
-  EXPECT_NE(test::slurp(json).find("\"reconstruction\": \"central8\""), std::string::npos);
-  r = test::run(kExtract + " torus --resolution 16 --reconstruction monotone -o " + monotone);
-  ASSERT_EQ(r.status, 0) << r.err;
-  EXPECT_EQ(r.err.find("reference:"), std::string::npos) << r.err;  // said only when auto chose
-  EXPECT_NE(test::slurp(central8), test::slurp(monotone));
-
-  auto field = makeAnalyticField("torus");
-  BuildOptions o;
-  o.isovalue = field->defaultIsovalue();
-  o.reconstruction = Reconstruction::Central8;
-  const Model expected = buildModel(sampleField(*field, 16, "torus"), o);
-  const Model written = readModel(central8);
-  EXPECT_EQ(written.reconstruction, Reconstruction::Central8);  // recorded in the file
-  EXPECT_EQ(readModel(monotone).reconstruction, Reconstruction::Monotone);
-  ASSERT_EQ(written.cells.size(), expected.cells.size());
-  for (std::size_t c = 0; c < expected.cells.size(); ++c)
-    EXPECT_EQ(written.cells[c].central, expected.cells[c].central) << c;
+  const Model autoModel = libraryModel("torus", 32, Reconstruction::Auto);
+  const Model monotoneModel = libraryModel("torus", 32, Reconstruction::Monotone);
+  const Model central8Model = libraryModel("torus", 32, Reconstruction::Central8);
+  ASSERT_EQ(autoModel.reconstruction, Reconstruction::Central8);
+  ASSERT_TRUE(numbersOf(autoModel) == numbersOf(central8Model));
+  ASSERT_TRUE(numbersOf(monotoneModel) != numbersOf(central8Model));  // the comparisons below tell them apart
+  for (const char* kind : {"monotone", "central8", "auto"}) {
+    SCOPED_TRACE(kind);
+    const std::string model = dir.file(std::string(kind) + ".cip"),
+                      json = dir.file(std::string(kind) + ".json");
+    auto r = test::run(kExtract + " torus --resolution 32 --reconstruction " + kind + " -o " + model +
+                       " --stats-json " + json);
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_EQ(r.err.find("too steep"), std::string::npos) << r.err;  // smooth data
+    const bool automatic = std::string(kind) == "auto";
+    EXPECT_EQ(r.err.find("reference:") != std::string::npos, automatic)
+        << r.err;  // said only when auto chose
+    const Model& expected = std::string(kind) == "monotone" ? monotoneModel : central8Model;
+    const Model written = readModel(model);
+    EXPECT_EQ(written.reconstruction, expected.reconstruction);  // recorded in the file
+    EXPECT_TRUE(numbersOf(written) == numbersOf(expected));
+    const std::string text = test::slurp(json);
+    EXPECT_NE(text.find("\"reconstruction\": \"" + std::string(kind) + "\""), std::string::npos) << text;
+    EXPECT_NE(text.find(std::string("\"reconstruction\": \"") + toString(*expected.reconstruction) + "\""),
+              std::string::npos)
+        << text;
+  }
 
   // A sparse volume: the bricks keep the 4 points the central8 reference reads around their cells, so the
   // model is the one of the whole volume read as a single brick.
   const std::string sphere = test::sharedData("vdb/sphere.vdb"), vdbModel = dir.file("v.cip");
-  r = test::run(kExtract + " " + sphere + " --reconstruction central8 -q -o " + vdbModel);
+  auto r = test::run(kExtract + " " + sphere + " --reconstruction central8 -q -o " + vdbModel);
   ASSERT_EQ(r.status, 0) << r.err;
   VolumeReadOptions whole;
   whole.brickCells = 1 << 20;
   whole.apron = referenceReach(Reconstruction::Central8);
   const SparseVolume v = readVolume(sphere, whole);
   ASSERT_EQ(v.bricks.size(), 1u);
+  BuildOptions o;
   o.isovalue = 0;
+  o.reconstruction = Reconstruction::Central8;
   const Model single = buildModel(v.geometry, v.bricks, o, "");
   const Model bricked = readModel(vdbModel);
   ASSERT_EQ(bricked.cells.size(), single.cells.size());
-  for (std::size_t c = 0; c < single.cells.size(); ++c)
-    ASSERT_EQ(bricked.cells[c].central, single.cells[c].central) << c;
+  EXPECT_TRUE(numbersOf(bricked) == numbersOf(single));
 
   r = test::run(kExtract + " torus --resolution 16 --reconstruction sinc -o " + dir.file("x.cip"));
   EXPECT_NE(r.status, 0);
@@ -132,4 +163,103 @@ TEST(ExtractCli, ReconstructionChoosesTheReference) {
     EXPECT_NE(r.status, 0) << other;
     EXPECT_NE(r.err.find("applies to --method fitted with --normals gradient"), std::string::npos) << r.err;
   }
+}
+
+/// The file holds exactly `mesh` as cip writes PLY (binary, float coordinates and normals); the reader takes
+/// it back with its counts.
+void expectPlyOf(const std::string& file, const TriangleMesh& mesh, const std::string& what) {
+  const std::vector<std::uint8_t> bytes = encodePly(mesh);
+  EXPECT_TRUE(test::slurp(file) == std::string(bytes.begin(), bytes.end())) << what;
+  const TriangleMesh read = readPly(file);
+  EXPECT_EQ(read.positions.size(), mesh.positions.size()) << what;
+  EXPECT_EQ(read.normals.size(), mesh.normals.size()) << what;
+  EXPECT_EQ(read.triangles, mesh.triangles) << what;
+}
+
+// --mc-mesh and --patch-mesh write the library's meshes of the model written (marching cubes on its cells and
+// isovertices; the patch surface with --subdiv samples per cell edge), as PLY files the reader takes back;
+// both are closed, oriented spheres (Euler characteristic 2), and the stats list their sizes.
+TEST(ExtractCli, MeshesAreTheModelsAndClosed) {
+  test::ScratchDir dir;
+  const std::string model = dir.file("s.cip"), mc = dir.file("mc.ply"), patch = dir.file("patch.ply"),
+                    json = dir.file("s.json");
+  auto r = test::run(kExtract + " sphere --resolution 12 --normals exact -q -o " + model + " --mc-mesh " +
+                     mc + " --patch-mesh " + patch + " --subdiv 3 --stats-json " + json);
+  ASSERT_EQ(r.status, 0) << r.err;
+  const Model m = readModel(model);
+  MarchingCubesOptions mo;
+  mo.recordCells = false;
+  expectPlyOf(mc, marchingCubes(m, mo), "marching cubes");
+  expectPlyOf(patch, patchMesh(m, 3), "patch mesh");
+  const TriangleMesh mcRead = readPly(mc), patchRead = readPly(patch);
+  for (const TriangleMesh* mesh : {&mcRead, &patchRead}) {
+    const MeshTopology topology = analyseTopology(*mesh);
+    EXPECT_TRUE(topology.closedAndOriented()) << topology.describe();
+    EXPECT_EQ(topology.eulerCharacteristic, 2) << topology.describe();
+    EXPECT_EQ(topology.components, 1u) << topology.describe();
+  }
+  const std::string text = test::slurp(json);
+  for (const std::string& file : {model, mc, patch})
+    EXPECT_NE(text.find("\"" + file + "\": " + std::to_string(std::filesystem::file_size(file))),
+              std::string::npos)
+        << file << "\n"
+        << text;
+  // --subdiv reaches the patch mesh: 3 samples per cell edge give fewer triangles than the default 4.
+  r = test::run(kExtract + " sphere --resolution 12 --normals exact -q -o " + model + " --patch-mesh " +
+                patch);
+  ASSERT_EQ(r.status, 0) << r.err;
+  expectPlyOf(patch, patchMesh(m, 4), "patch mesh, default subdivision");
+  const TriangleMesh finer = readPly(patch);
+  EXPECT_GT(finer.triangles.size(), patchRead.triangles.size());
+}
+
+// The model and both meshes are the same bytes on one thread and on two (the model, marching cubes and the
+// patch mesh each split their work over the threads given).
+TEST(ExtractCli, ThreadCountChangesNoByte) {
+  test::ScratchDir dir;
+  std::vector<std::string> outputs[2];
+  for (int threads : {1, 2}) {
+    const std::string t = std::to_string(threads);
+    const std::string model = dir.file("m" + t + ".cip"), mc = dir.file("mc" + t + ".ply"),
+                      patch = dir.file("p" + t + ".ply");
+    auto r = test::run(kExtract + " gyroid --resolution 20 -q --threads " + t + " -o " + model +
+                       " --mc-mesh " + mc + " --patch-mesh " + patch);
+    ASSERT_EQ(r.status, 0) << r.err;
+    for (const std::string& file : {model, mc, patch}) outputs[threads - 1].push_back(test::slurp(file));
+  }
+  ASSERT_GT(outputs[0][0].size(), 1000u);
+  for (std::size_t k = 0; k < outputs[0].size(); ++k) EXPECT_TRUE(outputs[0][k] == outputs[1][k]) << k;
+  // A thread count out of range is refused, not taken as "all".
+  auto r = test::run(kExtract + " gyroid --resolution 8 --threads -1 -o " + dir.file("x.cip"));
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.err.find("--threads"), std::string::npos) << r.err;
+}
+
+// --grid picks the OpenVDB grid by name: the smoke volume's `density` gives the same model as the default
+// (its first float grid), the stats name it; a name the file does not have is an error that lists the grids
+// the file has (as listVdbGrids reads them), and no model is written.
+TEST(ExtractCli, GridSelectsTheVdbGrid) {
+  test::ScratchDir dir;
+  const std::string smoke = test::sharedData("vdb/smoke.vdb"), named = dir.file("named.cip"),
+                    first = dir.file("first.cip"), json = dir.file("s.json");
+  const std::vector<VdbGridInfo> grids = listVdbGrids(smoke);
+  ASSERT_EQ(grids.size(), 1u);
+  ASSERT_EQ(grids[0].name, "density");
+  const std::string common = " --iso 0.5 --method paper -q -o ";
+  auto r = test::run(kExtract + " " + smoke + " --grid density" + common + named + " --stats-json " + json);
+  ASSERT_EQ(r.status, 0) << r.err;
+  r = test::run(kExtract + " " + smoke + common + first);
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_GT(readModel(named).cells.size(), 1000u);
+  EXPECT_TRUE(test::slurp(named) == test::slurp(first));
+  EXPECT_NE(test::slurp(json).find("grid density"), std::string::npos) << test::slurp(json);
+
+  const std::string missing = dir.file("missing.cip");
+  r = test::run(kExtract + " " + smoke + " --grid temperature" + common + missing);
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("no grid named 'temperature'"), std::string::npos) << r.err;
+  for (const VdbGridInfo& g : grids)
+    EXPECT_NE(r.err.find("'" + g.name + "' (" + g.valueType + ")"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find('\n'), r.err.size() - 1) << "one line: " << r.err;
+  EXPECT_FALSE(std::filesystem::exists(missing));
 }

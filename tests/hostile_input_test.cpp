@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <memory>
 #include <sstream>
 #include <vector>
 
@@ -17,6 +18,7 @@
 #include "support/command_line.h"
 
 namespace fs = std::filesystem;
+namespace test = cip::test;
 
 using cip::test::CommandResult;
 using cip::test::run;
@@ -30,10 +32,10 @@ const std::string kRaycast = std::string(CIP_BINARY_DIR) + "/raycast/raycast";
 class HostileInput : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir = fs::temp_directory_path() / ("cip_hostile_" + std::to_string(::getpid()));
-    fs::create_directories(dir);
+    scratch = std::make_unique<test::ScratchDir>();
+    dir = scratch->path();
   }
-  void TearDown() override { fs::remove_all(dir); }
+  void TearDown() override { scratch.reset(); }
   fs::path file(const std::string& name, const std::string& contents) {
     fs::path p = dir / name;
     std::ofstream(p, std::ios::binary) << contents;
@@ -47,6 +49,7 @@ class HostileInput : public ::testing::Test {
     std::sort(names.begin(), names.end());
     EXPECT_EQ(present, names);
   }
+  std::unique_ptr<test::ScratchDir> scratch;
   fs::path dir;
 };
 

@@ -9,6 +9,7 @@
 #include <string>
 
 #include "cip/core/error.h"
+#include "support/scratch_dir.h"
 
 using namespace cip;
 
@@ -71,7 +72,8 @@ void putLittle(std::vector<std::uint8_t>& out, T v) {
 
 TEST(Ply, RoundTripThroughFileBinaryLittleEndian) {
   TriangleMesh m = tetrahedron();
-  std::string path = testing::TempDir() + "/cip_ply_roundtrip.ply";
+  test::ScratchDir dir;
+  std::string path = dir.file("roundtrip.ply");
   std::size_t bytes = writePly(m, path, {});
   EXPECT_GT(bytes, 0u);
   TriangleMesh r = readPly(path);

@@ -158,10 +158,39 @@ TEST(VdbTreeCheck, RejectsCorruptTreesFoundByFuzzing) {
       {"a root child's origin at byte 17101 repeats an earlier child's"});
 }
 
+/// Problems of a volume a reader returned, as the builder would meet them: bricks that do not point at their
+/// samples, sample counts that do not match the brick's dims, bricks outside the grid, cell ranges outside
+/// the brick. Empty when the volume is sound.
+std::string unsoundness(const SparseVolume& v) {
+  if (v.bricks.empty() || v.bricks.size() != v.grids.size())
+    return "brick and grid counts differ or are zero";
+  for (std::size_t b = 0; b < v.bricks.size(); ++b) {
+    const GridBrick& brick = v.bricks[b];
+    const auto& dims = v.grids[b].geometry.dims;
+    if (brick.grid != &v.grids[b]) return "brick " + std::to_string(b) + " does not point at its samples";
+    if (v.grids[b].values.size() != static_cast<std::size_t>(dims[0] * dims[1] * dims[2]))
+      return "brick " + std::to_string(b) + " has a sample count other than its dims";
+    for (int a = 0; a < 3; ++a)
+      if (dims[a] < 1 || brick.offset[a] < 0 || brick.offset[a] + dims[a] > v.geometry.dims[a] ||
+          brick.cellBegin[a] < 0 || brick.cellBegin[a] > brick.cellEnd[a] || brick.cellEnd[a] > dims[a] - 1)
+        return "brick " + std::to_string(b) + " lies outside the grid on axis " + std::to_string(a);
+  }
+  return "";
+}
+
+std::vector<double> samplesOf(const SparseVolume& v) {
+  std::vector<double> out;
+  for (const DenseGrid& g : v.grids) out.insert(out.end(), g.values.begin(), g.values.end());
+  return out;
+}
+
 TEST(VdbTreeCheck, SingleByteCorruptionsGiveErrorsNotCrashes) {
   // Every byte of a small file (blosc and mask compression, OpenVDB's defaults) inverted in turn: each read
-  // either succeeds or fails with cip::Error. Under the sanitizers this also checks that nothing reads or
-  // writes out of bounds or asks for an absurd allocation on the way.
+  // either gives a sound volume or fails with cip::Error (any other exception fails the test). Under the
+  // sanitizers this also checks that nothing reads or writes out of bounds or asks for an absurd allocation
+  // on the way. Where the fields lie is found from OpenVDB's format, not from the reader: the fields the
+  // reader or OpenVDB must check are rejected at every byte, and values that only describe the file (its
+  // memory and voxel counts) are read over, giving the original samples.
   openvdb::initialize();
   test::ScratchDir dir;
   auto grid = openvdb::FloatGrid::create(2.0f);
@@ -171,25 +200,77 @@ TEST(VdbTreeCheck, SingleByteCorruptionsGiveErrorsNotCrashes) {
   grid->tree().setValueOff(openvdb::Coord(40, 0, 0), 5.0f);
   openvdb::io::File(dir.file("g.vdb")).write({grid});
   const std::string bytes = test::readAll(dir.file("g.vdb")), path = dir.file("c.vdb");
+  const std::vector<double> original = samplesOf(readVdb(dir.file("g.vdb")));
+
+  auto unique = [&](const std::string& what) {
+    const std::size_t at = bytes.find(what);
+    EXPECT_NE(at, std::string::npos) << what;
+    EXPECT_EQ(bytes.find(what, at + 1), std::string::npos) << what;
+    return at;
+  };
+  auto u32 = [](std::uint32_t v) { return std::string(reinterpret_cast<const char*>(&v), 4); };
+  // A string is stored as its u32 length and its bytes; a metadata entry as name, type name, u32 value size
+  // and value. The root of a one-buffer float tree starts with the buffer count 1, the background (2.0f), the
+  // tile count 0 and the child count 1, then the child's origin (3 x i32) and the upper internal node's child
+  // and value masks (4096 bytes each).
+  struct Range {
+    std::size_t begin, end;
+    std::string what;
+  };
+  const std::size_t type = unique(u32(16) + "Tree_float_5_4_3"), map = unique(u32(15) + "UniformScaleMap");
+  float background = 2.0f;
+  const std::size_t root =
+      unique(u32(1) + std::string(reinterpret_cast<const char*>(&background), 4) + u32(0) + u32(1));
+  const std::vector<Range> mustReject = {
+      {0, 8, "the magic number"},
+      {type, type + 20, "the grid type name and its length"},
+      {map, map + 19, "the transform's map type name and its length"},
+      {root + 28, root + 28 + 2 * 4096, "the upper internal node's child and value masks"}};
+  auto valueOf = [&](const std::string& name, const std::string& valueType) {
+    const std::size_t at = unique(u32(static_cast<std::uint32_t>(name.size())) + name +
+                                  u32(static_cast<std::uint32_t>(valueType.size())) + valueType) +
+                           8 + name.size() + valueType.size();
+    return Range{at + 4, at + 4 + 8, "the value of " + name};
+  };
+  const std::vector<Range> mustReadAsBefore = {valueOf("file_mem_bytes", "int64"),
+                                               valueOf("file_voxel_count", "int64")};
+  auto in = [](const std::vector<Range>& ranges, std::size_t i) -> const Range* {
+    for (const Range& r : ranges)
+      if (i >= r.begin && i < r.end) return &r;
+    return nullptr;
+  };
+
   int read = 0, rejected = 0, treeErrors = 0;
   for (std::size_t i = 0; i < bytes.size(); ++i) {
     std::string corrupt = bytes;
     corrupt[i] = static_cast<char>(~corrupt[i]);
     test::writeAll(path, corrupt);
+    const Range* reject = in(mustReject, i);
+    const Range* keep = in(mustReadAsBefore, i);
     try {
       [[maybe_unused]] LeaksIgnored ignored;
-      readVdb(path);
+      const SparseVolume v = readVdb(path);
       ++read;
+      EXPECT_EQ(unsoundness(v), "") << "byte " << i;
+      EXPECT_EQ(reject, nullptr) << "byte " << i << " of " << (reject ? reject->what : "") << " read";
+      if (keep) {
+        EXPECT_TRUE(samplesOf(v) == original) << "byte " << i << " of " << keep->what;
+      }
     } catch (const Error& e) {
       ++rejected;
       const std::string m = e.what();
       treeErrors += m.find("chunk") != std::string::npos || m.find("values of") != std::string::npos;
+      EXPECT_EQ(keep, nullptr) << "byte " << i << " of " << (keep ? keep->what : "") << ": " << m;
     }
   }
-  EXPECT_EQ(read + rejected, static_cast<int>(bytes.size()));
+  std::size_t mustRejectBytes = 0;
+  for (const Range& r : mustReject) mustRejectBytes += r.end - r.begin;
+  EXPECT_GE(rejected, static_cast<int>(mustRejectBytes));
+  EXPECT_GT(read, 0);        // some bytes are data the checks cannot judge (values inside compressed chunks)
   EXPECT_GT(treeErrors, 0);  // some corruptions reach the tree's chunk sizes
   std::cout << bytes.size() << " bytes: " << read << " corrupt files read, " << rejected << " rejected ("
-            << treeErrors << " at a chunk)\n";
+            << treeErrors << " at a chunk; " << mustRejectBytes
+            << " bytes in fields that must be rejected)\n";
 }
 
 /// A tree of one leaf below one lower and one upper internal node, as OpenVDB stores it with the given

@@ -9,6 +9,8 @@
 #include <sstream>
 #include <string>
 
+#include "scratch_dir.h"
+
 namespace cip::test {
 
 inline std::string slurp(const std::filesystem::path& p) {
@@ -23,14 +25,13 @@ struct CommandResult {
   std::string err;
 };
 
-/// Runs a shell command line, standard output discarded.
+/// Runs a shell command line, standard output discarded (standard error goes through a file in a scratch
+/// folder of its own).
 inline CommandResult run(const std::string& args) {
-  std::filesystem::path errFile =
-      std::filesystem::temp_directory_path() / ("cip_cli_stderr_" + std::to_string(::getpid()) + ".txt");
-  int rc = std::system((args + " 2> " + errFile.string() + " > /dev/null").c_str());
-  std::string err = slurp(errFile);
-  std::filesystem::remove(errFile);
-  return {WEXITSTATUS(rc), err};
+  ScratchDir scratch;
+  const std::string errFile = scratch.file("stderr.txt");
+  int rc = std::system((args + " 2> '" + errFile + "' > /dev/null").c_str());
+  return {WEXITSTATUS(rc), slurp(errFile)};
 }
 
 }  // namespace cip::test

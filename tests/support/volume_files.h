@@ -1,5 +1,5 @@
-// Test helpers for the volume readers: a scratch directory, whole-file reads and writes, gzip compression,
-// and expectations on cip::Error messages.
+// Test helpers for the volume readers: whole-file reads and writes, gzip compression, and expectations on
+// cip::Error messages (and the scratch folder of support/scratch_dir.h).
 #pragma once
 #include <gtest/gtest.h>
 #include <zlib.h>
@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "cip/core/error.h"
+#include "scratch_dir.h"
 
 namespace cip::test {
 
@@ -25,28 +26,6 @@ inline std::string sharedData(const std::string& name) {
 inline std::string sourceFile(const std::string& relative) {
   return std::string(CIP_SOURCE_DIR) + "/" + relative;
 }
-
-/// A fresh directory under the test temp dir, removed when the object goes away.
-class ScratchDir {
- public:
-  ScratchDir() {
-    std::string pattern = testing::TempDir() + "/cip_readers_XXXXXX";
-    std::vector<char> buf(pattern.begin(), pattern.end());
-    buf.push_back('\0');
-    if (!::mkdtemp(buf.data())) throw std::runtime_error("mkdtemp failed");
-    path_ = buf.data();
-  }
-  ~ScratchDir() {
-    std::error_code ec;
-    std::filesystem::remove_all(path_, ec);
-  }
-  ScratchDir(const ScratchDir&) = delete;
-  ScratchDir& operator=(const ScratchDir&) = delete;
-  std::string file(const std::string& name) const { return path_ + "/" + name; }
-
- private:
-  std::string path_;
-};
 
 inline std::string readAll(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
