@@ -23,9 +23,9 @@ struct VdbReadOptions {
   std::string gridName;
   /// Cells per brick side (>= 1).
   int brickCells = 32;
-  /// Points kept around each brick's owned cells, where the global grid has them (1..64). A cell's reference
-  /// reads referenceReach(kind) points beyond its corners (tricubic_reference.h): with at least that many,
-  /// every brick's references, and so the model, equal those of the whole volume read as one brick.
+  /// Points kept around each brick's owned cells, where the global grid has them (1..64). A build reads up to
+  /// brickApron(options) points beyond a cell's corners (model_builder.h): with at least that many, every
+  /// brick's references, and so the model, equal those of the whole volume read as one brick.
   int apron = 1;
   /// Limit on the total bytes of brick samples (doubles), checked before any brick is allocated.
   std::size_t maxBytes = DenseGrid::defaultMaxBytes();

@@ -9,7 +9,7 @@
 /// Geometry: `geometry` is the global grid (dims, world origin of global point (0,0,0), spacing per axis;
 /// axis-aligned only). Each brick's DenseGrid holds the values of a box of global points starting at
 /// brick.offset, including an apron of points around the cells it owns wherever the global grid has points
-/// there (1 by default; referenceReach(kind) for the reference of the fitted build, tricubic_reference.h),
+/// there (1 by default; brickApron(options) of the model builder for the build asked for),
 /// so derivatives at the owned cells' corners match those of the whole volume. Each cell is owned by at most
 /// one brick.
 #pragma once
