@@ -204,6 +204,8 @@ int run(const Options& opt) {
   stats.input = opt.input;
   auto t0 = Clock::now();
   cip::BuildOptions options = buildOptions(opt);
+  cip::BuildTimings timings;
+  options.timings = &timings;
   Input in = readInput(opt, options, stats);
   stats.dims = in.volume.geometry.dims;
   stats.seconds["read"] = secondsSince(t0);
@@ -218,6 +220,11 @@ int run(const Options& opt) {
   auto t1 = Clock::now();
   cip::Model model = build(opt, in, options, stats);
   stats.seconds["build"] = secondsSince(t1);
+  stats.seconds["build_scan"] = timings.scan;
+  stats.seconds["build_reference"] = timings.reference;
+  stats.seconds["build_isovertices"] = timings.isovertices;
+  stats.seconds["build_assemble"] = timings.assemble;
+  stats.seconds["build_fit"] = timings.fit;
 
   auto t2 = Clock::now();
   stats.bytesWritten[opt.output] = cip::writeModel(model, opt.output);

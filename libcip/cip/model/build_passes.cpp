@@ -11,6 +11,7 @@
 
 #include "cip/core/bisection.h"
 #include "cip/core/error.h"
+#include "cip/core/huge_pages.h"
 #include "cip/model/patch_fitting.h"
 #include "cip/patch/patch_coefficients.h"
 #include "cip/topology/cube_topology.h"
@@ -34,19 +35,6 @@ bool sameKey(const EdgeRef& x, const EdgeRef& y) {
 
 // ---- Pass 1: scan ----
 
-std::uint8_t cellConfig(const DenseGrid& g, std::int64_t i, std::int64_t j, std::int64_t k, double iso,
-                        bool& nonFinite) {
-  std::uint8_t config = 0;
-  nonFinite = false;
-  for (int v = 0; v < 8; ++v) {
-    auto c = cube::vertexCoords(v);
-    double x = g.at(i + c[0], j + c[1], k + c[2]);
-    if (!std::isfinite(x)) nonFinite = true;
-    if (x > iso) config = static_cast<std::uint8_t>(config | (1u << v));
-  }
-  return config;
-}
-
 /// The first cell the scan's workers found with a non-finite corner value.
 struct NonFiniteCell {
   std::atomic<bool> found{false};
@@ -66,20 +54,100 @@ struct RowCount {
   std::int64_t total = 0;
 };
 
+/// What the scan needs to know of one row of grid points along x (over a brick's cells): where its samples
+/// change side of the isovalue, as in the first pass of flying edges. Cells left of every row's first change
+/// and right of every row's last change are uncrossed when the rows agree at their ends.
+struct PointRow {
+  std::int64_t firstChange = 0;  ///< first cell index i (brick-local) with sign(i) != sign(i + 1), or end
+  std::int64_t lastChange = -1;  ///< last such i, or -1
+  bool firstPositive = false, lastPositive = false;
+  bool nonFinite = false;  ///< a NaN or infinite sample: the row's cells take the careful path
+};
+
+PointRow summarizeRow(const double* v, std::int64_t begin, std::int64_t end, double iso) {
+  PointRow row;
+  row.firstChange = end;
+  bool prev = v[begin] > iso;
+  row.firstPositive = prev;
+  bool finite = std::abs(v[begin]) <= std::numeric_limits<double>::max();
+  for (std::int64_t i = begin + 1; i <= end; ++i) {
+    const bool s = v[i] > iso;
+    finite = finite && std::abs(v[i]) <= std::numeric_limits<double>::max();
+    if (s != prev) {
+      if (row.firstChange == end) row.firstChange = i - 1;
+      row.lastChange = i - 1;
+    }
+    prev = s;
+  }
+  row.lastPositive = prev;
+  row.nonFinite = !finite;
+  return row;
+}
+
+/// The summaries of the point rows of brick `b`'s cells: (ny + 1) * (nz + 1) rows, y fastest.
+std::vector<PointRow> summarizeRows(const GridBrick& b, double iso) {
+  const std::int64_t ny = b.cellEnd[1] - b.cellBegin[1] + 1, nz = b.cellEnd[2] - b.cellBegin[2] + 1;
+  std::vector<PointRow> rows(static_cast<std::size_t>(ny * nz));
+  tbb::parallel_for(
+      tbb::blocked_range<std::int64_t>(0, ny * nz, 64), [&](const tbb::blocked_range<std::int64_t>& r) {
+        for (std::int64_t n = r.begin(); n != r.end(); ++n) {
+          const double* v = &b.grid->values[static_cast<std::size_t>(
+              b.grid->index(0, b.cellBegin[1] + n % ny, b.cellBegin[2] + n / ny))];
+          rows[static_cast<std::size_t>(n)] = summarizeRow(v, b.cellBegin[0], b.cellEnd[0], iso);
+        }
+      });
+  return rows;
+}
+
 /// The crossed cells of row (j, k) of brick `bi` (brick-local indices) and their crossed edges, sorted by
-/// key, each once.
-void scanRow(const Input& in, std::uint32_t bi, std::int64_t j, std::int64_t k, std::vector<CellRef>& cells,
-             std::vector<EdgeRef>& edges, NonFiniteCell& bad) {
+/// key, each once. `rows` are the brick's point-row summaries, `ny` its cell rows along y.
+void scanRow(const Input& in, std::uint32_t bi, std::int64_t j, std::int64_t k,
+             const std::vector<PointRow>& rows, std::vector<CellRef>& cells, std::vector<EdgeRef>& edges,
+             NonFiniteCell& bad) {
   const GridBrick& b = in.bricks[bi];
-  for (std::int64_t i = b.cellBegin[0]; i < b.cellEnd[0]; ++i) {
-    const std::array<std::int64_t, 3> cell{i + b.offset[0], j + b.offset[1], k + b.offset[2]};
-    bool nonFinite;
-    std::uint8_t config = cellConfig(*b.grid, i, j, k, in.options.isovalue, nonFinite);
-    if (nonFinite) {
-      if (!in.options.skipNonFinite) bad.report(cell);
-      continue;
+  const DenseGrid& g = *b.grid;
+  const double iso = in.options.isovalue;
+  const std::int64_t rowsY = b.cellEnd[1] - b.cellBegin[1] + 1;
+  const std::int64_t r0 = (j - b.cellBegin[1]) + rowsY * (k - b.cellBegin[2]);
+  const PointRow* corner[4] = {&rows[static_cast<std::size_t>(r0)], &rows[static_cast<std::size_t>(r0 + 1)],
+                               &rows[static_cast<std::size_t>(r0 + rowsY)],
+                               &rows[static_cast<std::size_t>(r0 + rowsY + 1)]};
+  std::int64_t lo = b.cellEnd[0], hi = b.cellBegin[0] - 1;
+  bool careful = false, firstsAgree = true, lastsAgree = true;
+  for (const PointRow* r : corner) {
+    careful = careful || r->nonFinite;
+    lo = std::min(lo, r->firstChange);
+    hi = std::max(hi, r->lastChange);
+    firstsAgree = firstsAgree && r->firstPositive == corner[0]->firstPositive;
+    lastsAgree = lastsAgree && r->lastPositive == corner[0]->lastPositive;
+  }
+  if (careful || !firstsAgree) lo = b.cellBegin[0];
+  if (careful || !lastsAgree) hi = b.cellEnd[0] - 1;
+  if (lo > hi) return;
+  const double* p[4] = {&g.values[static_cast<std::size_t>(g.index(0, j, k))],
+                        &g.values[static_cast<std::size_t>(g.index(0, j + 1, k))],
+                        &g.values[static_cast<std::size_t>(g.index(0, j, k + 1))],
+                        &g.values[static_cast<std::size_t>(g.index(0, j + 1, k + 1))]};
+  // Sign bits of the cell's x = 0 face (vertex x + 2y + 4z): rows (y, z) = (0,0), (1,0), (0,1), (1,1).
+  auto side = [&](std::int64_t i) {
+    return static_cast<unsigned>(p[0][i] > iso) | static_cast<unsigned>(p[1][i] > iso) << 2 |
+           static_cast<unsigned>(p[2][i] > iso) << 4 | static_cast<unsigned>(p[3][i] > iso) << 6;
+  };
+  unsigned left = side(lo);
+  for (std::int64_t i = lo; i <= hi; ++i) {
+    const unsigned right = side(i + 1);
+    const auto config = static_cast<std::uint8_t>(left | right << 1);
+    left = right;
+    if (careful) {
+      bool finite = true;
+      for (int r = 0; r < 4; ++r) finite = finite && std::isfinite(p[r][i]) && std::isfinite(p[r][i + 1]);
+      if (!finite) {
+        if (!in.options.skipNonFinite) bad.report({i + b.offset[0], j + b.offset[1], k + b.offset[2]});
+        continue;
+      }
     }
     if (config == 0 || config == 0xFF) continue;
+    const std::array<std::int64_t, 3> cell{i + b.offset[0], j + b.offset[1], k + b.offset[2]};
     cells.push_back(CellRef{in.keys.point(cell[0], cell[1], cell[2]), bi, config});
     std::uint16_t crossed = cube::crossedEdges(config);
     for (int e = 0; e < 12; ++e)
@@ -89,23 +157,44 @@ void scanRow(const Input& in, std::uint32_t bi, std::int64_t j, std::int64_t k, 
   edges.erase(std::unique(edges.begin(), edges.end(), sameKey), edges.end());
 }
 
-/// Brick `bi`'s rows in parallel, appended to `scan` in row order.
+/// Appends the chunks' vectors to `out` in order, copying in parallel.
+template <class T>
+void appendRows(const std::vector<std::vector<T>>& rows, std::vector<T>& out) {
+  std::vector<std::size_t> offset(rows.size() + 1, out.size());
+  for (std::size_t r = 0; r < rows.size(); ++r) offset[r + 1] = offset[r] + rows[r].size();
+  reserveHuge(out, offset.back());
+  out.resize(offset.back());
+  tbb::parallel_for(std::size_t(0), rows.size(), [&](std::size_t r) {
+    std::copy(rows[r].begin(), rows[r].end(), out.begin() + static_cast<std::ptrdiff_t>(offset[r]));
+  });
+}
+
+/// Brick `bi`'s rows in parallel, appended to `scan` in row order. Rows go in chunks of kScanChunk, each with
+/// its own output, so that few vectors grow (a vector per row made the scan mostly page faults).
 void scanBrick(const Input& in, std::uint32_t bi, RowCount& rows, NonFiniteCell& bad, CellScan& scan) {
+  constexpr std::int64_t kScanChunk = 64;
   const GridBrick& b = in.bricks[bi];
   std::int64_t ny = b.cellEnd[1] - b.cellBegin[1], nz = b.cellEnd[2] - b.cellBegin[2];
   if (ny <= 0 || nz <= 0 || b.cellEnd[0] <= b.cellBegin[0]) return;
-  std::vector<std::vector<CellRef>> rowCells(static_cast<std::size_t>(ny * nz));
-  std::vector<std::vector<EdgeRef>> rowEdges(rowCells.size());
-  tbb::parallel_for(
-      tbb::blocked_range<std::int64_t>(0, ny * nz), [&](const tbb::blocked_range<std::int64_t>& r) {
-        for (std::int64_t row = r.begin(); row != r.end(); ++row) {
-          scanRow(in, bi, b.cellBegin[1] + row % ny, b.cellBegin[2] + row / ny, rowCells[row], rowEdges[row],
-                  bad);
-          in.progress.set(0.3 * static_cast<double>(++rows.done) / static_cast<double>(rows.total));
-        }
-      });
-  for (auto& rc : rowCells) scan.cells.insert(scan.cells.end(), rc.begin(), rc.end());
-  for (auto& re : rowEdges) scan.edges.insert(scan.edges.end(), re.begin(), re.end());
+  const std::vector<PointRow> pointRows = summarizeRows(b, in.options.isovalue);
+  const std::int64_t chunks = (ny * nz + kScanChunk - 1) / kScanChunk;
+  std::vector<std::vector<CellRef>> chunkCells(static_cast<std::size_t>(chunks));
+  std::vector<std::vector<EdgeRef>> chunkEdges(chunkCells.size());
+  tbb::parallel_for(std::int64_t(0), chunks, [&](std::int64_t chunk) {
+    thread_local std::vector<EdgeRef> rowEdges;
+    auto& cells = chunkCells[static_cast<std::size_t>(chunk)];
+    auto& edges = chunkEdges[static_cast<std::size_t>(chunk)];
+    const std::int64_t end = std::min(ny * nz, (chunk + 1) * kScanChunk);
+    for (std::int64_t row = chunk * kScanChunk; row < end; ++row) {
+      rowEdges.clear();
+      scanRow(in, bi, b.cellBegin[1] + row % ny, b.cellBegin[2] + row / ny, pointRows, cells, rowEdges, bad);
+      edges.insert(edges.end(), rowEdges.begin(), rowEdges.end());
+    }
+    const std::int64_t done = rows.done += end - chunk * kScanChunk;
+    in.progress.set(0.3 * static_cast<double>(done) / static_cast<double>(rows.total));
+  });
+  appendRows(chunkCells, scan.cells);
+  appendRows(chunkEdges, scan.edges);
 }
 
 // ---- Pass 3: isovertices ----
@@ -349,7 +438,9 @@ std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges) {
 
 std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference& reference,
                                         const std::vector<EdgeRef>& edges) {
-  std::vector<IsoVertex> vertices(edges.size());
+  std::vector<IsoVertex> vertices;
+  reserveHuge(vertices, edges.size());
+  vertices.resize(edges.size());
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, edges.size()),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t n = r.begin(); n != r.end(); ++n)
@@ -360,8 +451,11 @@ std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference&
 
 std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>& cells,
                                      const std::vector<EdgeRef>& edges, Model& model) {
+  reserveHuge(model.cells, cells.size());
   model.cells.resize(cells.size());
-  model.corners.resize(layOutCorners(cells, model.cells));
+  const std::uint64_t corners = layOutCorners(cells, model.cells);
+  reserveHuge(model.corners, corners);
+  model.corners.resize(corners);
   const bool keepLoops = fitsModelWide(in.options);  // the fitting works on them again
   std::vector<CellLoops> loops(keepLoops ? cells.size() : 0);
   std::atomic<std::size_t> cellsDone{0};

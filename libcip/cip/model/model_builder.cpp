@@ -3,6 +3,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <chrono>
 
 #include "cip/core/error.h"
 #include "cip/model/build_passes.h"
@@ -71,24 +72,39 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
   model.method = options.method;
   model.source = source;
 
+  BuildTimings timings;
+  using Clock = std::chrono::steady_clock;
+  auto mark = Clock::now();
+  auto lap = [&](double& seconds) {
+    const auto now = Clock::now();
+    seconds = std::chrono::duration<double>(now - mark).count();
+    mark = now;
+  };
   arena.execute([&] {
     const build::Input in{geometry, bricks, options, build::GridKeys{geometry.dims}, progress};
     // Scan (progress to 0.3): the crossed cells and their crossed edges, brick by brick, row by row.
     build::CellScan scan = build::scanCells(in);
+    lap(timings.scan);
     // Reference: the reconstruction of the samples, Auto resolved from the crossed cells in scan order, and
     // its data at their corners.
     const build::SampledReference reference = build::prepareReference(in, scan.cells);
+    lap(timings.reference);
     // Isovertices: one per crossed grid edge, ordered by edge key.
     const std::vector<build::EdgeRef> edges = build::uniqueEdges(std::move(scan.edges));
     model.vertices = build::placeIsovertices(in, reference, edges);
+    lap(timings.isovertices);
     progress.set(0.5);
     // Assemble (progress to 1): the cells in cell-key order, with their loops and corners.
-    std::stable_sort(scan.cells.begin(), scan.cells.end());
+    if (!std::is_sorted(scan.cells.begin(), scan.cells.end()))  // one brick's scan is in key order already
+      std::stable_sort(scan.cells.begin(), scan.cells.end());
     const std::vector<CellLoops> loops = build::assembleCells(in, scan.cells, edges, model);
+    lap(timings.assemble);
     // Coefficients (PatchMethod::Fitted): fitted model-wide, one per face for its two cells (the paper's
     // construction set them per cell while assembling).
     if (build::fitsModelWide(options)) build::fitCoefficients(in, scan.cells, reference, loops, model);
+    lap(timings.fit);
   });
+  if (options.timings) *options.timings = timings;
   progress.set(1.0);
   return model;
 }

@@ -19,6 +19,15 @@ namespace cip {
 
 struct FittingStats;  // patch_fitting.h
 
+/// Wall-clock seconds of each pass of buildModel (build_passes.h), for profiles and --stats-json.
+struct BuildTimings {
+  double scan = 0;         ///< crossed cells and edges
+  double reference = 0;    ///< the reconstruction's choice and its data at the crossed cells' corners
+  double isovertices = 0;  ///< unique edges and their isovertices
+  double assemble = 0;     ///< loops and corners of each cell (paper coefficients)
+  double fit = 0;          ///< fitted coefficients (PatchMethod::Fitted)
+};
+
 /// How the central coefficient w of each cell is set.
 enum class CentralRule : std::uint8_t {
   Zero = 0,  ///< w = 0 (the paper's examples)
@@ -45,6 +54,8 @@ struct BuildOptions {
   /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took,
   /// and the reconstruction used.
   FittingStats* fittingStats = nullptr;
+  /// When set, receives the seconds each pass of the build took.
+  BuildTimings* timings = nullptr;
   /// Analytic field sampled by the grid (world coordinates); required for NormalMode::Exact.
   const ScalarField* exactField = nullptr;
   /// Cells with a NaN or infinite corner value are skipped (left empty) instead of failing the build.

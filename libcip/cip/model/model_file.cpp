@@ -9,6 +9,7 @@
 
 #include "cip/core/atomic_file.h"
 #include "cip/core/error.h"
+#include "cip/core/huge_pages.h"
 #include "cip/topology/cube_topology.h"
 
 namespace cip {
@@ -80,8 +81,8 @@ std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
 
 std::vector<std::uint8_t> serializeModel(const Model& m) {
   Writer w;
-  w.bytes.reserve(128 + m.source.size() + m.vertices.size() * kVertexBytes + m.cells.size() * 64 +
-                  m.corners.size() * 4);
+  reserveHuge(w.bytes, 128 + m.source.size() + m.vertices.size() * kVertexBytes + m.cells.size() * 64 +
+                           m.corners.size() * 4);
   for (char c : kMagic) w.put(c);
   w.put<std::uint32_t>(kModelFileVersion);
   for (auto d : m.geometry.dims) w.put<std::int64_t>(d);
@@ -191,6 +192,7 @@ TableCounts readTableCounts(Reader& r) {
 }
 
 void readVertices(Reader& r, std::uint64_t count, Model& m) {
+  reserveHuge(m.vertices, count);
   m.vertices.resize(count);
   for (IsoVertex& v : m.vertices) {
     for (int a = 0; a < 3; ++a) v.position[a] = r.getFinite("vertex position");
@@ -253,7 +255,9 @@ void readCellCorners(Reader& r, Model& m, std::uint64_t ci, const CellLoops& loo
 /// The cell table: per cell its head, corners and coefficients (a side coefficient per crossed face, the
 /// central one).
 void readCells(Reader& r, const TableCounts& counts, Model& m) {
+  reserveHuge(m.cells, counts.cells);
   m.cells.resize(counts.cells);
+  reserveHuge(m.corners, counts.corners);
   m.corners.resize(counts.corners);
   std::uint64_t cornersSoFar = 0;
   std::uint64_t prevKey = 0;
@@ -303,7 +307,9 @@ Model readModel(const std::string& path) {
   if (!in) throw Error(path + ": cannot open model file");
   std::streamoff size = in.tellg();
   if (size < 0) throw Error(path + ": cannot read model file");
-  std::vector<std::uint8_t> bytes(static_cast<std::size_t>(size));
+  std::vector<std::uint8_t> bytes;
+  reserveHuge(bytes, static_cast<std::size_t>(size));
+  bytes.resize(static_cast<std::size_t>(size));
   in.seekg(0);
   if (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), size)) throw Error(path + ": read failed");
   return parseModel(bytes.data(), bytes.size(), path);

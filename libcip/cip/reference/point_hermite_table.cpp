@@ -6,6 +6,7 @@
 #include <array>
 
 #include "cip/core/error.h"
+#include "cip/core/huge_pages.h"
 
 namespace cip {
 
@@ -39,6 +40,7 @@ PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<st
     total += static_cast<std::uint64_t>(__builtin_popcountll(present_[w]));
   }
   if (total > 0xFFFFFFFFu) throw Error("too many grid points for one reference table");
+  reserveHuge(data_, static_cast<std::size_t>(total));
   data_.resize(static_cast<std::size_t>(total));
 
   // The points of one tile: their box-local positions over the tile's bounding box of points.

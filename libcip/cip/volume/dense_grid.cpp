@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "cip/core/error.h"
+#include "cip/core/huge_pages.h"
 
 namespace cip {
 
@@ -42,6 +43,8 @@ std::int64_t checkedVolumeSize(const std::array<std::int64_t, 3>& dims, std::siz
 void DenseGrid::allocate(const std::array<std::int64_t, 3>& dims, std::size_t maxBytes) {
   std::int64_t n = checkedVolumeSize(dims, sizeof(double), maxBytes);
   geometry.dims = dims;
+  values.clear();
+  reserveHuge(values, static_cast<std::size_t>(n));
   values.assign(static_cast<std::size_t>(n), 0.0);
 }
 
