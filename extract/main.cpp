@@ -1,6 +1,7 @@
 // extract: volume -> corner-patch model (.cip), plus optional marching-cubes and patch meshes.
 #include <CLI/CLI.hpp>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
@@ -17,6 +18,7 @@
 #include "cip/readers/volume_reader.h"
 #include "cip/volume/analytic_field.h"
 #include "extract_stats.h"
+#include "huge_page_restart.h"
 
 namespace {
 
@@ -81,7 +83,8 @@ Input readInput(const Options& opt, const cip::BuildOptions& build, cip::Extract
   if (!isFile && (in.field = cip::makeAnalyticField(opt.input))) {
     in.volume = cip::fromDense(cip::sampleField(
         *in.field, opt.resolution,
-        opt.input + " sampled at " + std::to_string(opt.resolution) + " cells per axis over [-1,1]^3"));
+        opt.input + " sampled at " + std::to_string(opt.resolution) + " cells per axis over [-1,1]^3",
+        opt.threads));
     in.defaultIso = in.field->defaultIsovalue();
     stats.inputType = "analytic field " + opt.input;
     return in;
@@ -318,6 +321,9 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
+  const double analyticPoints =
+      std::filesystem::exists(opt.input) ? 0.0 : std::pow(static_cast<double>(opt.resolution) + 1, 3);
+  cip::restartWithHugePages(argv, opt.input, analyticPoints);
   try {
     return run(opt);
   } catch (const std::bad_alloc&) {

@@ -269,19 +269,47 @@ std::uint64_t layOutCorners(const std::vector<CellRef>& cells, std::vector<Model
   return cornerTotal;
 }
 
+/// Finds the isovertices of a run of cells in key order. The keys of a given edge of the cell (cell edge e)
+/// increase with the cell's key, so each edge keeps a cursor into the sorted edge table that only moves
+/// forward: a short gallop per lookup instead of a binary search over the whole table.
+class EdgeCursors {
+ public:
+  explicit EdgeCursors(const std::vector<EdgeRef>& edges) : edges_(edges) { pos_.fill(0); }
+
+  /// Index of `key` (present in the table) for cell edge `e`.
+  std::size_t find(int e, Key key) {
+    std::size_t& pos = pos_[static_cast<std::size_t>(e)];
+    const std::size_t n = edges_.size();
+    if (pos < n && edges_[pos].key == key) return pos;
+    std::size_t step = 1, lo = pos, hi = pos;
+    while (hi < n && edges_[hi].key < key) {  // gallop: lo < key <= hi
+      lo = hi;
+      hi = std::min(n, hi + step);
+      step *= 2;
+    }
+    auto it = std::lower_bound(edges_.begin() + static_cast<std::ptrdiff_t>(lo),
+                               edges_.begin() + static_cast<std::ptrdiff_t>(hi), key,
+                               [](const EdgeRef& x, Key k) { return x.key < k; });
+    pos = static_cast<std::size_t>(it - edges_.begin());
+    if (pos >= n || edges_[pos].key != key) throw Error("crossed edge missing from the isovertex table");
+    return pos;
+  }
+
+ private:
+  const std::vector<EdgeRef>& edges_;
+  std::array<std::size_t, 12> pos_;
+};
+
 /// The isovertices on the crossed edges of cell `gc` (its lowest point), in cell-local coordinates, and their
 /// indices in the model's table.
 void cellIsovertices(const Input& in, const CellRef& cell, const std::array<std::int64_t, 3>& gc,
-                     const std::vector<EdgeRef>& edges, const std::vector<IsoVertex>& vertices,
+                     EdgeCursors& cursors, const std::vector<IsoVertex>& vertices,
                      std::array<IsoVertex, 12>& local, std::array<std::uint32_t, 12>& vertexIndex) {
   const Vec3 origin(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
   std::uint16_t crossed = cube::crossedEdges(cell.config);
   for (int e = 0; e < 12; ++e) {
     if (!((crossed >> e) & 1)) continue;
-    Key key = in.keys.cellEdge(gc, e);
-    auto it =
-        std::lower_bound(edges.begin(), edges.end(), key, [](const EdgeRef& x, Key k) { return x.key < k; });
-    vertexIndex[e] = static_cast<std::uint32_t>(it - edges.begin());
+    vertexIndex[e] = static_cast<std::uint32_t>(cursors.find(e, in.keys.cellEdge(gc, e)));
     local[e] = vertices[vertexIndex[e]];
     local[e].position -= origin;
   }
@@ -354,7 +382,7 @@ std::function<double(const Vec3&)> interiorReference(const Input& in, const Cell
 
 /// One cell of the model: its loops, corners and (PatchMethod::Paper) coefficients into `mc` and its corner
 /// slots of model.corners. Returns its loops.
-CellLoops assembleCell(const Input& in, const CellRef& cell, const std::vector<EdgeRef>& edges, Model& model,
+CellLoops assembleCell(const Input& in, const CellRef& cell, EdgeCursors& edges, Model& model,
                        ModelCell& mc) {
   const auto gc = in.keys.coords(cell.key);
   std::array<IsoVertex, 12> local;
@@ -461,13 +489,13 @@ std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>
   std::atomic<std::size_t> cellsDone{0};
   tbb::parallel_for(
       tbb::blocked_range<std::size_t>(0, cells.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+        EdgeCursors cursors(edges);
         for (std::size_t c = r.begin(); c != r.end(); ++c) {
-          CellLoops cellLoops = assembleCell(in, cells[c], edges, model, model.cells[c]);
+          CellLoops cellLoops = assembleCell(in, cells[c], cursors, model, model.cells[c]);
           if (keepLoops) loops[c] = cellLoops;
-          std::size_t done = ++cellsDone;
-          if (done % 4096 == 0)
-            in.progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
         }
+        const std::size_t done = cellsDone += r.size();
+        in.progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
       });
   return loops;
 }

@@ -1,6 +1,7 @@
 #include "cip/volume/analytic_field.h"
 
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <cmath>
 
@@ -169,7 +170,7 @@ double marschnerLobbRippleFrequency(const Vec3& p) {
   return MarschnerLobb::fM * kPi / 2 * std::abs(std::sin(kPi * planeLength(p.x(), p.y()) / 2));
 }
 
-DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description) {
+DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description, int threads) {
   if (resolution < 1 || resolution > 4096)
     throw Error("resolution must be between 1 and 4096 cells per axis");
   DenseGrid g;
@@ -178,10 +179,20 @@ DenseGrid sampleField(const ScalarField& field, int resolution, const std::strin
   g.geometry.origin = Vec3(-1, -1, -1);
   g.geometry.spacing = Vec3::Constant(2.0 / resolution);
   g.description = description;
-  tbb::parallel_for(std::int64_t(0), n, [&](std::int64_t k) {
-    for (std::int64_t j = 0; j < n; ++j)
-      for (std::int64_t i = 0; i < n; ++i)
-        g.at(i, j, k) = field.value(g.geometry.indexToWorld(Vec3(double(i), double(j), double(k))));
+  // World coordinates per axis exactly as indexToWorld computes them for each point.
+  std::array<std::vector<double>, 3> coordinate;
+  for (int a = 0; a < 3; ++a) {
+    coordinate[a].resize(static_cast<std::size_t>(n));
+    for (std::int64_t i = 0; i < n; ++i)
+      coordinate[a][static_cast<std::size_t>(i)] = g.geometry.origin[a] + g.geometry.spacing[a] * double(i);
+  }
+  const int m = static_cast<int>(n);
+  tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
+  arena.execute([&] {
+    tbb::parallel_for(std::int64_t(0), n, [&](std::int64_t k) {
+      field.valuesOnLattice(coordinate[0].data(), coordinate[1].data(), coordinate[2].data() + k, {m, m, 1},
+                            {1, m, 0}, &g.at(0, 0, k));
+    });
   });
   return g;
 }
