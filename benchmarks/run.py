@@ -90,8 +90,25 @@ def analytic_numpy(name, n):
     raise ValueError(name)
 
 
+MRI = "/usr/share/mricron/templates/ch2.nii.gz"  # Colin 27 T1 (181x217x181 uint8), Debian's mricron-data
+MRI_ISO = 60.0
+
+
+def mri_numpy():
+    """The MRI as float32 (x fastest), read with gzip and numpy: a 352-byte NIfTI-1 header, then the voxels."""
+    import gzip
+    import struct
+    import numpy as np
+    data = gzip.open(MRI).read()
+    dims = struct.unpack("<8h", data[40:56])[1:4]
+    offset = int(struct.unpack("<f", data[108:112])[0])
+    n = dims[0] * dims[1] * dims[2]
+    return np.frombuffer(data[offset:offset + n], np.uint8).astype(np.float32).reshape(dims[::-1]), MRI_ISO
+
+
 def vtk_flying_edges(cases, threads_all):
-    """Times vtkFlyingEdges3D on the same analytic grids. Returns rows, or a note when VTK is absent."""
+    """Times vtkFlyingEdges3D on the same grids (case name, values z-y-x, isovalue). Returns rows, or a note when
+    VTK is absent."""
     try:
         import numpy as np
         import vtk
@@ -99,10 +116,10 @@ def vtk_flying_edges(cases, threads_all):
     except ImportError:
         return [], "python3-vtk9 is not installed: VTK's flying edges were skipped."
     rows = []
-    for name, n in cases:
-        values, iso = analytic_numpy(name, n)
+    for name, values, iso in cases:
+        dims = values.shape[::-1]
         img = vtk.vtkImageData()
-        img.SetDimensions(n + 1, n + 1, n + 1)
+        img.SetDimensions(*dims)
         arr = numpy_support.numpy_to_vtk(np.ascontiguousarray(values.ravel()).astype(np.float32), deep=True)
         img.GetPointData().SetScalars(arr)
         for threads in (1, threads_all):
@@ -119,13 +136,25 @@ def vtk_flying_edges(cases, threads_all):
                 best = dt if best is None else min(best, dt)
                 if dt > 1:
                     break
-            cells = n ** 3
-            rows.append({"case": "%s-%d" % (name, n), "points": (n + 1) ** 3, "cells": cells,
+            cells = (dims[0] - 1) * (dims[1] - 1) * (dims[2] - 1)
+            rows.append({"case": name, "points": dims[0] * dims[1] * dims[2], "cells": cells,
                          "method": "vtk-flying-edges", "threads": threads, "seconds": best,
                          "mcells_per_s": cells / best * 1e-6,
                          "output_count": fe.GetOutput().GetNumberOfCells(), "output_bytes": 0, "input_bytes": 0})
     return rows, "VTK %s flying edges (vtkSMPTools backend %s)." % (
         vtk.vtkVersion.GetVTKVersion(), vtk.vtkSMPTools.GetBackend())
+
+
+def vtk_cases(extraction):
+    """The grids of cip_bench's extraction cases that numpy can rebuild: analytic fields and the MRI."""
+    out = []
+    for case in sorted({r["case"] for r in extraction}):
+        field, _, n = case.rpartition("-")
+        if field in ("sphere", "torus", "gyroid") and n.isdigit():
+            out.append((case,) + analytic_numpy(field, int(n)))
+        elif case == "mri-colin27" and os.path.exists(MRI):
+            out.append((case,) + mri_numpy())
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -227,6 +256,27 @@ def plot(fidelity, extraction, render_rows, out):
         fig.savefig(path, dpi=100)
         plt.close(fig)
         plots.append(path)
+    cells = {r["case"]: int(r["output_count"]) for r in extraction if r["method"] == "cip-patches-fitted"}
+    one = [r for r in extraction if int(r["threads"]) == 1 and cells.get(r["case"])]
+    if one:
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        for m in sorted({r["method"] for r in one}):
+            pts = sorted((cells[r["case"]], float(r["seconds"]) / cells[r["case"]] * 1e6, r["case"])
+                         for r in one if r["method"] == m)
+            ax.semilogx([p[0] for p in pts], [p[1] for p in pts], marker="o", linestyle="", label=m)
+            if m == "cip-patches-fitted":
+                for x, y, name in pts:
+                    ax.annotate(name, (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
+        ax.set_title("extraction time per patch cell, 1 thread")
+        ax.set_xlabel("patch cells (crossed cells) of the case")
+        ax.set_ylabel("microseconds per patch cell")
+        ax.set_ylim(bottom=0)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        path = os.path.join(out, "extraction-per-cell.png")
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        plots.append(path)
     sph = [r for r in render_rows if r["case"].startswith("sphere-")]
     if len({r["case"] for r in sph}) > 1:
         fig, ax = plt.subplots(figsize=(6, 4))
@@ -273,6 +323,32 @@ def ratios(extraction):
     return rows
 
 
+TARGET_CASES = ("sphere-256", "gyroid-192", "mri-colin27")
+
+
+def speed_targets(extraction):
+    """The figures of the extraction speed targets (docs/performance.md), per case: fitted / volumeToMesh and
+    paper / flying edges on one thread, and each method's speed-up from one thread to all."""
+    t = {(r["case"], r["method"], int(r["threads"])): float(r["seconds"]) for r in extraction}
+    cells = {r["case"]: int(r["output_count"]) for r in extraction if r["method"] == "cip-patches-fitted"}
+    n = max(int(r["threads"]) for r in extraction)
+    cases = [c for c in TARGET_CASES if (c, "cip-patches-fitted", 1) in t] or sorted(cells)
+    rows = []
+    for c in cases:
+        def ratio(a, b):
+            return t[a] / t[b] if a in t and b in t else ""
+        rows.append({"case": c, "patch_cells": cells.get(c, ""),
+                     "fitted_s": t.get((c, "cip-patches-fitted", 1), ""),
+                     "fitted_over_volumeToMesh": ratio((c, "cip-patches-fitted", 1), (c, "openvdb-volumeToMesh", 1)),
+                     "paper_s": t.get((c, "cip-patches-paper", 1), ""),
+                     "paper_over_flying_edges": ratio((c, "cip-patches-paper", 1), (c, "vtk-flying-edges", 1)),
+                     "fitted_speedup_1_to_%d" % n: ratio((c, "cip-patches-fitted", 1), (c, "cip-patches-fitted", n)),
+                     "paper_speedup_1_to_%d" % n: ratio((c, "cip-patches-paper", 1), (c, "cip-patches-paper", n)),
+                     "volumeToMesh_speedup_1_to_%d" % n: ratio((c, "openvdb-volumeToMesh", 1),
+                                                               (c, "openvdb-volumeToMesh", n))})
+    return rows
+
+
 def debian_python():
     """Debian's python3-numpy/matplotlib/vtk9 live in /usr/bin/python3's path; re-run there if another python3
     (e.g. a pyenv one) started this script."""
@@ -294,7 +370,7 @@ def main():
     t_start = time.perf_counter()
     if not args.no_install:
         sh(["bash", os.path.join(ROOT, "scripts", "install-deps.sh"), "python3-numpy", "python3-matplotlib",
-            "libopenvdb-tools"] + ([] if args.quick else ["python3-vtk9"]), log=False)
+            "libopenvdb-tools"] + ([] if args.quick else ["python3-vtk9", "mricron-data"]), log=False)
     sh(["cmake", "-S", ROOT, "-B", args.build_dir, "-DCMAKE_BUILD_TYPE=Release", "-DCIP_BUILD_BENCHMARKS=ON"],
        log=False, stdout=subprocess.DEVNULL)
     sh(["cmake", "--build", args.build_dir, "-j", str(os.cpu_count()), "--target", "cip_bench", "extract", "raycast"],
@@ -304,10 +380,12 @@ def main():
     bench = os.path.join(args.build_dir, "benchmarks", "cip_bench")
     quick = ["--quick"] if args.quick else []
     ex_csv = os.path.join(out, "extraction.csv")
-    sh([bench, "extraction", "--csv", ex_csv, "--shared-data", args.shared_data] + quick)
+    # The heap on huge pages, as extract has it for inputs of 16 MB and more (docs/performance.md); the peers
+    # run in the same process and share it.
+    huge = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
+    sh([bench, "extraction", "--csv", ex_csv, "--shared-data", args.shared_data] + quick, env=huge)
     extraction = read_csv(ex_csv)
-    vtk_cases = [(f, n) for f in ("sphere", "torus", "gyroid") for n in ((32,) if args.quick else (64, 128, 256))]
-    vtk_rows, vtk_note = vtk_flying_edges(vtk_cases, os.cpu_count())
+    vtk_rows, vtk_note = vtk_flying_edges(vtk_cases(extraction), os.cpu_count())
     extraction += vtk_rows
     write_csv(ex_csv, extraction, list(extraction[0].keys()))
 
@@ -318,6 +396,9 @@ def main():
     render_rows, images = render_section(args.build_dir, out, args.quick, args.shared_data)
     write_csv(os.path.join(out, "rendering.csv"), render_rows, list(render_rows[0].keys()))
     ratio_rows = ratios(extraction)
+    target_rows = speed_targets(extraction)
+    if target_rows:
+        write_csv(os.path.join(out, "extraction-targets.csv"), target_rows, list(target_rows[0].keys()))
     write_csv(os.path.join(out, "extraction-ratios.csv"), ratio_rows, list(ratio_rows[0].keys()))
     plots = plot(fidelity, extraction, render_rows, out)
 
@@ -341,9 +422,19 @@ def main():
           "cip-patches-fitted / -paper: the corner-patch model (`buildModel`; fitted is extract's default, paper the "
           "corner I-patch paper's construction, see docs/method.md). cip-marching-cubes: the project's "
           "marching cubes (isovertices and loops, then triangulation; `extract --mc-mesh`). "
-          "openvdb-volumeToMesh: OpenVDB's mesher on the same samples (all voxels active). " + vtk_note, "",
+          "openvdb-volumeToMesh: OpenVDB's mesher on the same samples (all voxels active). " + vtk_note + " Times "
+          "exclude reading or sampling the volume; cip_bench runs with glibc's huge-page heap "
+          "(GLIBC_TUNABLES=glibc.malloc.hugetlb=1, as extract does for inputs of 16 MB and more), which the peers "
+          "in the same process share. mri-colin27 is the Colin 27 T1 brain template (181x217x181, uint8, "
+          "Debian's mricron-data) at isovalue 60.", "",
           table(extraction, ["case", "method", "threads", "seconds", "mcells_per_s", "output_count"],
                 {"seconds": "%.4f", "mcells_per_s": "%.2f"}), "",
+          "Speed targets (docs/performance.md): the fitted construction against OpenVDB's volumeToMesh and the paper's "
+          "against VTK's flying edges on one thread (target: at most 1.0 and 2.0), and each method's speed-up from "
+          "one thread to all (target: at least 1.7 on two):", "",
+          table(target_rows, list(target_rows[0].keys()) if target_rows else ["case"],
+                {k: "%.2f" for k in (target_rows[0].keys() if target_rows else []) if k != "case" and k != "patch_cells"}),
+          "", "![time per patch cell](extraction-per-cell.png)", "",
           "Ratios (peer time / cip-patches-fitted time, same case and threads; below 1 means the peer is faster):", "",
           table(ratio_rows, ["case", "threads", "peer", "peer_time_over_cip_fitted"],
                 {"peer_time_over_cip_fitted": "%.2f"}), "",
