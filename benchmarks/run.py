@@ -382,7 +382,8 @@ def main():
     ex_csv = os.path.join(out, "extraction.csv")
     # The heap on huge pages, as extract has it for inputs of 16 MB and more (docs/performance.md); the peers
     # run in the same process and share it.
-    huge = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
+    huge = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:"
+                "glibc.malloc.trim_threshold=4294967296:glibc.malloc.top_pad=67108864")  # extract/huge_page_restart.cpp
     sh([bench, "extraction", "--csv", ex_csv, "--shared-data", args.shared_data] + quick, env=huge)
     extraction = read_csv(ex_csv)
     vtk_rows, vtk_note = vtk_flying_edges(vtk_cases(extraction), os.cpu_count())
@@ -424,7 +425,7 @@ def main():
           "marching cubes (isovertices and loops, then triangulation; `extract --mc-mesh`). "
           "openvdb-volumeToMesh: OpenVDB's mesher on the same samples (all voxels active). " + vtk_note + " Times "
           "exclude reading or sampling the volume; cip_bench runs with glibc's huge-page heap "
-          "(GLIBC_TUNABLES=glibc.malloc.hugetlb=1, as extract does for inputs of 16 MB and more), which the peers "
+          "(GLIBC_TUNABLES as extract sets them for inputs of 16 MB and more: extract/huge_page_restart.cpp), which the peers "
           "in the same process share. mri-colin27 is the Colin 27 T1 brain template (181x217x181, uint8, "
           "Debian's mricron-data) at isovalue 60.", "",
           table(extraction, ["case", "method", "threads", "seconds", "mcells_per_s", "output_count"],

