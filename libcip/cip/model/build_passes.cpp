@@ -99,11 +99,11 @@ std::vector<PointRow> summarizeRows(const GridBrick& b, double iso) {
   return rows;
 }
 
-/// The crossed cells of row (j, k) of brick `bi` (brick-local indices) and their crossed edges, sorted by
-/// key, each once. `rows` are the brick's point-row summaries, `ny` its cell rows along y.
+/// The crossed cells of row (j, k) of brick `bi` (brick-local indices) and, with `listEdges`, their crossed
+/// edges, sorted by key, each once. `rows` are the brick's point-row summaries.
 void scanRow(const Input& in, std::uint32_t bi, std::int64_t j, std::int64_t k,
-             const std::vector<PointRow>& rows, std::vector<CellRef>& cells, std::vector<EdgeRef>& edges,
-             NonFiniteCell& bad) {
+             const std::vector<PointRow>& rows, bool listEdges, std::vector<CellRef>& cells,
+             std::vector<EdgeRef>& edges, NonFiniteCell& bad) {
   const GridBrick& b = in.bricks[bi];
   const DenseGrid& g = *b.grid;
   const double iso = in.options.isovalue;
@@ -149,6 +149,7 @@ void scanRow(const Input& in, std::uint32_t bi, std::int64_t j, std::int64_t k,
     if (config == 0 || config == 0xFF) continue;
     const std::array<std::int64_t, 3> cell{i + b.offset[0], j + b.offset[1], k + b.offset[2]};
     cells.push_back(CellRef{in.keys.point(cell[0], cell[1], cell[2]), bi, config});
+    if (!listEdges) continue;
     std::uint16_t crossed = cube::crossedEdges(config);
     for (int e = 0; e < 12; ++e)
       if ((crossed >> e) & 1) edges.push_back(EdgeRef{in.keys.cellEdge(cell, e), bi});
@@ -169,6 +170,55 @@ void appendRows(const std::vector<std::vector<T>>& rows, std::vector<T>& out) {
   });
 }
 
+/// The crossed edges of a brick whose samples are all finite, sorted by key, each once, found from the point
+/// rows instead of the cells: with finite samples every grid edge of the brick whose ends lie on both sides
+/// of the isovalue is an edge of one of its crossed cells, and the edges of a point row, in key order, are
+/// those from its points in x order (axes 0, 1, 2 at each point). Rows go in parallel chunks.
+std::vector<EdgeRef> brickEdges(const Input& in, std::uint32_t bi, const std::vector<PointRow>& rows) {
+  constexpr std::int64_t kChunk = 64;
+  const GridBrick& b = in.bricks[bi];
+  const DenseGrid& g = *b.grid;
+  const double iso = in.options.isovalue;
+  const std::int64_t ny = b.cellEnd[1] - b.cellBegin[1] + 1, nz = b.cellEnd[2] - b.cellBegin[2] + 1;
+  const std::int64_t x0 = b.cellBegin[0], x1 = b.cellEnd[0];  // points x0 .. x1
+  // The points where rows a and c may differ in sign (outside, each is uniform with the same side).
+  auto between = [&](const PointRow& a, const PointRow& c, std::int64_t& lo, std::int64_t& hi) {
+    lo = a.firstPositive != c.firstPositive ? x0 : std::min(a.firstChange, c.firstChange) + 1;
+    hi = a.lastPositive != c.lastPositive ? x1 : std::max(a.lastChange, c.lastChange);
+  };
+  const std::int64_t chunks = (ny * nz + kChunk - 1) / kChunk;
+  std::vector<std::vector<EdgeRef>> chunkEdges(static_cast<std::size_t>(chunks));
+  tbb::parallel_for(std::int64_t(0), chunks, [&](std::int64_t chunk) {
+    auto& out = chunkEdges[static_cast<std::size_t>(chunk)];
+    const std::int64_t end = std::min(ny * nz, (chunk + 1) * kChunk);
+    for (std::int64_t n = chunk * kChunk; n < end; ++n) {
+      const std::int64_t jr = n % ny, kr = n / ny, j = b.cellBegin[1] + jr, k = b.cellBegin[2] + kr;
+      const PointRow& a = rows[static_cast<std::size_t>(n)];
+      const bool hasY = jr + 1 < ny, hasZ = kr + 1 < nz;
+      std::int64_t lo = a.firstChange, hi = a.lastChange, ylo = 0, yhi = -1, zlo = 0, zhi = -1;
+      if (hasY) between(a, rows[static_cast<std::size_t>(n + 1)], ylo, yhi);
+      if (hasZ) between(a, rows[static_cast<std::size_t>(n + ny)], zlo, zhi);
+      if (ylo <= yhi) lo = std::min(lo, ylo), hi = std::max(hi, yhi);
+      if (zlo <= zhi) lo = std::min(lo, zlo), hi = std::max(hi, zhi);
+      if (lo > hi) continue;
+      const double* p = &g.values[static_cast<std::size_t>(g.index(0, j, k))];
+      const double* py = hasY ? p + g.geometry.dims[0] : p;
+      const double* pz = hasZ ? p + g.geometry.dims[0] * g.geometry.dims[1] : p;
+      const Key row = in.keys.point(b.offset[0], j + b.offset[1], k + b.offset[2]) * 3;
+      for (std::int64_t i = lo; i <= hi; ++i) {
+        const bool s = p[i] > iso;
+        const Key key = row + static_cast<Key>(i) * 3;
+        if (i < x1 && s != (p[i + 1] > iso)) out.push_back(EdgeRef{key, bi});
+        if (hasY && s != (py[i] > iso)) out.push_back(EdgeRef{key + 1, bi});
+        if (hasZ && s != (pz[i] > iso)) out.push_back(EdgeRef{key + 2, bi});
+      }
+    }
+  });
+  std::vector<EdgeRef> edges;
+  appendRows(chunkEdges, edges);
+  return edges;
+}
+
 /// Brick `bi`'s rows in parallel, appended to `scan` in row order. Rows go in chunks of kScanChunk, each with
 /// its own output, so that few vectors grow (a vector per row made the scan mostly page faults).
 void scanBrick(const Input& in, std::uint32_t bi, RowCount& rows, NonFiniteCell& bad, CellScan& scan) {
@@ -177,6 +227,9 @@ void scanBrick(const Input& in, std::uint32_t bi, RowCount& rows, NonFiniteCell&
   std::int64_t ny = b.cellEnd[1] - b.cellBegin[1], nz = b.cellEnd[2] - b.cellBegin[2];
   if (ny <= 0 || nz <= 0 || b.cellEnd[0] <= b.cellBegin[0]) return;
   const std::vector<PointRow> pointRows = summarizeRows(b, in.options.isovalue);
+  // One brick with finite samples: its edges come from the point rows, already in key order (brickEdges).
+  const bool fromRows = in.bricks.size() == 1 && std::none_of(pointRows.begin(), pointRows.end(),
+                                                              [](const PointRow& r) { return r.nonFinite; });
   const std::int64_t chunks = (ny * nz + kScanChunk - 1) / kScanChunk;
   std::vector<std::vector<CellRef>> chunkCells(static_cast<std::size_t>(chunks));
   std::vector<std::vector<EdgeRef>> chunkEdges(chunkCells.size());
@@ -187,14 +240,20 @@ void scanBrick(const Input& in, std::uint32_t bi, RowCount& rows, NonFiniteCell&
     const std::int64_t end = std::min(ny * nz, (chunk + 1) * kScanChunk);
     for (std::int64_t row = chunk * kScanChunk; row < end; ++row) {
       rowEdges.clear();
-      scanRow(in, bi, b.cellBegin[1] + row % ny, b.cellBegin[2] + row / ny, pointRows, cells, rowEdges, bad);
+      scanRow(in, bi, b.cellBegin[1] + row % ny, b.cellBegin[2] + row / ny, pointRows, !fromRows, cells,
+              rowEdges, bad);
       edges.insert(edges.end(), rowEdges.begin(), rowEdges.end());
     }
     const std::int64_t done = rows.done += end - chunk * kScanChunk;
     in.progress.set(0.3 * static_cast<double>(done) / static_cast<double>(rows.total));
   });
   appendRows(chunkCells, scan.cells);
-  appendRows(chunkEdges, scan.edges);
+  if (fromRows) {
+    scan.edges = brickEdges(in, bi, pointRows);
+    scan.edgesUnique = true;
+  } else {
+    appendRows(chunkEdges, scan.edges);
+  }
 }
 
 // ---- Pass 3: isovertices ----
@@ -456,9 +515,11 @@ SampledReference prepareReference(const Input& in, const std::vector<CellRef>& c
   return reference;
 }
 
-std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges) {
-  tbb::parallel_sort(edges.begin(), edges.end());
-  edges.erase(std::unique(edges.begin(), edges.end(), sameKey), edges.end());
+std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges, bool alreadyUnique) {
+  if (!alreadyUnique) {
+    tbb::parallel_sort(edges.begin(), edges.end());
+    edges.erase(std::unique(edges.begin(), edges.end(), sameKey), edges.end());
+  }
   if (edges.size() > std::numeric_limits<std::uint32_t>::max())
     throw Error("too many isovertices for one model");
   return edges;

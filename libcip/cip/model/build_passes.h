@@ -86,10 +86,12 @@ inline bool fitsModelWide(const BuildOptions& options) {
 }
 
 /// Scan's result: the crossed cells and, per brick row, their crossed edges without repeats (an edge shared
-/// by two bricks is listed by both), both brick by brick and row by row.
+/// by two bricks is listed by both), both brick by brick and row by row; for one brick of finite samples,
+/// the edges sorted and unique (edgesUnique).
 struct CellScan {
   std::vector<CellRef> cells;
   std::vector<EdgeRef> edges;
+  bool edgesUnique = false;  ///< edges already sorted by key, each once (one brick of finite samples)
 };
 
 /// Pass 1, progress 0 to 0.3. Throws NonFiniteSampleError for a cell with a NaN or infinite corner value
@@ -108,9 +110,9 @@ struct SampledReference {
 /// Pass 2. `cells` in scan order (Auto's estimate adds them in that order).
 SampledReference prepareReference(const Input& in, const std::vector<CellRef>& cells);
 
-/// The scanned edges sorted by key, each once (from the first brick that lists it). Throws cip::Error when
-/// there are more than 2^32 - 1.
-std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges);
+/// The scanned edges sorted by key, each once (from the first brick that lists it; `alreadyUnique`: they are,
+/// CellScan::edgesUnique). Throws cip::Error when there are more than 2^32 - 1.
+std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges, bool alreadyUnique = false);
 
 /// Pass 3: the isovertex of every edge of `edges` (uniqueEdges), in their order: the model's vertex table.
 std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference& reference,

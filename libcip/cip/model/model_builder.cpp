@@ -90,7 +90,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
     const build::SampledReference reference = build::prepareReference(in, scan.cells);
     lap(timings.reference);
     // Isovertices: one per crossed grid edge, ordered by edge key.
-    const std::vector<build::EdgeRef> edges = build::uniqueEdges(std::move(scan.edges));
+    const std::vector<build::EdgeRef> edges = build::uniqueEdges(std::move(scan.edges), scan.edgesUnique);
     model.vertices = build::placeIsovertices(in, reference, edges);
     lap(timings.isovertices);
     progress.set(0.5);
