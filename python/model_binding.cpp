@@ -104,6 +104,27 @@ py::tuple extract(const py::object& input, const py::object& level, const py::ob
   return py::make_tuple(model, range.first, range.second);
 }
 
+/// The non-empty cell holding index point `p`, or -1: the cell whose lower corner is floor(p) or, for a point
+/// on a cell face, edge or corner, the first non-empty cell among those sharing it (patches join
+/// continuously).
+std::int64_t cellAt(const Model& model, const Vec3& p) {
+  const auto& dims = model.geometry.dims;
+  std::array<std::int64_t, 3> cell{};
+  int onFace = 0;  // bit a: p lies on a grid plane of axis a inside the grid, so cell[a] - 1 also holds it
+  for (int a = 0; a < 3; ++a) {
+    if (!(p[a] >= 0 && p[a] <= static_cast<double>(dims[a] - 1))) return -1;
+    cell[a] = std::min<std::int64_t>(static_cast<std::int64_t>(p[a]), dims[a] - 2);
+    if (static_cast<double>(cell[a]) == p[a] && cell[a] > 0) onFace |= 1 << a;
+  }
+  for (int shift = 0; shift < 8; ++shift) {
+    if ((shift & ~onFace) != 0) continue;
+    const std::int64_t c =
+        model.findCell(cell[0] - (shift & 1), cell[1] - ((shift >> 1) & 1), cell[2] - (shift >> 2));
+    if (c >= 0) return c;
+  }
+  return -1;
+}
+
 /// Field values and world gradients of the model's patches at world points; NaN outside non-empty cells.
 py::tuple evaluate(const Model& model, const py::array& points) {
   auto p = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(points);
@@ -113,28 +134,21 @@ py::tuple evaluate(const Model& model, const py::array& points) {
   const double* in = p.data();
   double* v = values.mutable_data();
   double* g = gradients.mutable_data();
-  {
-    py::gil_scoped_release release;
-    const GridGeometry& geo = model.geometry;
-    tbb::parallel_for(py::ssize_t{0}, n, [&](py::ssize_t i) {
-      const Vec3 index = geo.worldToIndex(Vec3(in[3 * i], in[3 * i + 1], in[3 * i + 2]));
-      std::array<std::int64_t, 3> cell{};
-      bool inside = true;
-      for (int a = 0; a < 3; ++a) {
-        inside = inside && index[a] >= 0 && index[a] <= static_cast<double>(geo.dims[a] - 1);
-        cell[a] = inside ? std::min<std::int64_t>(static_cast<std::int64_t>(index[a]), geo.dims[a] - 2) : 0;
-      }
-      const std::int64_t c = inside ? model.findCell(cell[0], cell[1], cell[2]) : -1;
-      if (c < 0) {
-        v[i] = g[3 * i] = g[3 * i + 1] = g[3 * i + 2] = std::numeric_limits<double>::quiet_NaN();
-        return;
-      }
-      const PatchDerivatives d = model.patch(static_cast<std::size_t>(c))
-                                     .derivatives(index - model.cellOrigin(static_cast<std::size_t>(c)));
-      v[i] = d.value;
-      for (int a = 0; a < 3; ++a) g[3 * i + a] = d.gradient[a] / geo.spacing[a];
-    });
-  }
+  py::gil_scoped_release release;
+  const GridGeometry& geo = model.geometry;
+  tbb::parallel_for(py::ssize_t{0}, n, [&](py::ssize_t i) {
+    const Vec3 index = geo.worldToIndex(Vec3(in[3 * i], in[3 * i + 1], in[3 * i + 2]));
+    const std::int64_t c = cellAt(model, index);
+    if (c < 0) {
+      v[i] = g[3 * i] = g[3 * i + 1] = g[3 * i + 2] = std::numeric_limits<double>::quiet_NaN();
+      return;
+    }
+    const auto cell = static_cast<std::size_t>(c);
+    const PatchDerivatives d = model.patch(cell).derivatives(index - model.cellOrigin(cell));
+    v[i] = d.value;
+    for (int a = 0; a < 3; ++a) g[3 * i + a] = d.gradient[a] / geo.spacing[a];
+  });
+  py::gil_scoped_acquire acquire;
   return py::make_tuple(values, gradients);
 }
 
