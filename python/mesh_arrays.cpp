@@ -28,7 +28,8 @@ py::array_t<T, py::array::c_style | py::array::forcecast> rows3(const py::array&
 }
 
 std::vector<Vec3> vectors(const py::array& a, const char* what) {
-  const auto r = rows3<double>(a, what).unchecked<2>();
+  const auto array = rows3<double>(a, what);
+  const auto r = array.unchecked<2>();
   std::vector<Vec3> out(static_cast<std::size_t>(r.shape(0)));
   for (py::ssize_t i = 0; i < r.shape(0); ++i)
     out[static_cast<std::size_t>(i)] = Vec3(r(i, 0), r(i, 1), r(i, 2));
@@ -57,7 +58,8 @@ TriangleMesh meshFromArrays(const py::array& verts, const py::array& faces, cons
   }
   const py::dtype kind = faces.dtype();
   if (kind.kind() != 'i' && kind.kind() != 'u') throw Error("faces must be an (F, 3) array of integers");
-  const auto r = rows3<std::int64_t>(faces, "faces").unchecked<2>();
+  const auto array = rows3<std::int64_t>(faces, "faces");
+  const auto r = array.unchecked<2>();
   mesh.triangles.resize(static_cast<std::size_t>(r.shape(0)));
   for (py::ssize_t t = 0; t < r.shape(0); ++t)
     for (int k = 0; k < 3; ++k) {

@@ -17,9 +17,10 @@ constexpr std::uint32_t kBinChunk = 0x004E4942;   // "BIN\0"
 constexpr int kFloat = 5126, kUnsignedInt = 5125;
 constexpr int kArrayBuffer = 34962, kElementArrayBuffer = 34963;
 
-std::string number(double v) {
+/// A float32 value in full (17 digits), so that the JSON number is the float itself, not a neighbour of it.
+std::string number(float v) {
   char buf[40];
-  std::snprintf(buf, sizeof buf, "%.9g", v);
+  std::snprintf(buf, sizeof buf, "%.17g", static_cast<double>(v));
   return buf;
 }
 
