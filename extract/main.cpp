@@ -12,7 +12,7 @@
 #include "cip/core/progress_bar.h"
 #include "cip/mesh/marching_cubes.h"
 #include "cip/mesh/patch_mesh.h"
-#include "cip/mesh/ply.h"
+#include "cip/meshio/mesh_file.h"
 #include "cip/model/model_builder.h"
 #include "cip/model/model_file.h"
 #include "cip/readers/volume_reader.h"
@@ -141,7 +141,7 @@ void writeMeshes(const Options& opt, const cip::Model& model, cip::ExtractStats&
     mo.threads = opt.threads;
     mo.recordCells = false;
     cip::TriangleMesh mesh = cip::marchingCubes(model, mo);
-    stats.bytesWritten[opt.mcMesh] = cip::writePly(mesh, opt.mcMesh);
+    stats.bytesWritten[opt.mcMesh] = cip::writeMesh(mesh, opt.mcMesh);
     stats.seconds["marching_cubes"] = secondsSince(t);
   }
   if (!opt.patchMesh.empty()) {
@@ -149,7 +149,7 @@ void writeMeshes(const Options& opt, const cip::Model& model, cip::ExtractStats&
     cip::PatchMeshOptions po;
     po.threads = opt.threads;
     cip::TriangleMesh mesh = cip::patchMesh(model, opt.subdiv, po);
-    stats.bytesWritten[opt.patchMesh] = cip::writePly(mesh, opt.patchMesh);
+    stats.bytesWritten[opt.patchMesh] = cip::writeMesh(mesh, opt.patchMesh);
     stats.seconds["patch_mesh"] = secondsSince(t);
   }
 }
@@ -209,6 +209,9 @@ int run(const Options& opt) {
   cip::BuildOptions options = buildOptions(opt);
   cip::BuildTimings timings;
   options.timings = &timings;
+  // Mesh names the writers refuse fail here, before the build.
+  if (!opt.mcMesh.empty()) cip::meshFormatOf(opt.mcMesh);
+  if (!opt.patchMesh.empty()) cip::meshFormatOf(opt.patchMesh);
   Input in = readInput(opt, options, stats);
   stats.dims = in.volume.geometry.dims;
   stats.seconds["read"] = secondsSince(t0);
@@ -298,12 +301,14 @@ int main(int argc, char** argv) {
                  "OpenVDB input: grid name (default: the first float or double grid), e.g. --grid density");
   app.add_option(
       "--mc-mesh", opt.mcMesh,
-      "also write the marching-cubes mesh of the model's cells and isovertices (binary PLY; the "
-      "isovertices are linear crossings with --method paper, the reference's edge roots with fitted), "
-      "e.g. --mc-mesh mc.ply");
+      "also write the marching-cubes mesh of the model's cells and isovertices (the "
+      "isovertices are linear crossings with --method paper, the reference's edge roots with fitted); the "
+      "format follows the extension: .stl binary STL, .obj OBJ with normals, .glb binary glTF 2.0, .ply and "
+      "any other binary PLY, e.g. --mc-mesh mc.ply");
   app.add_option(
       "--patch-mesh", opt.patchMesh,
-      "also write a crack-free mesh of the corner-patch surface (binary PLY), e.g. --patch-mesh p.ply");
+      "also write a crack-free mesh of the corner-patch surface (format by extension as for --mc-mesh), "
+      "e.g. --patch-mesh p.glb");
   app.add_option("--subdiv", opt.subdiv, "patch mesh: samples per cell edge (default 4), e.g. --subdiv 8")
       ->check(CLI::Range(1, 64));
   app.add_option("--stats-json", opt.statsJson,

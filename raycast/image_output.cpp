@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <iterator>
 #include <vector>
 
 #include "cip/core/error.h"
@@ -62,7 +63,7 @@ float linearToSrgb(float c) {
 void writeExr(const RenderImage& img, const std::string& path) {
   constexpr int kFloats = 8, kChannels = 9;
   OIIO::ImageSpec spec(img.width, img.height, kChannels, OIIO::TypeDesc::FLOAT);
-  spec.channelnames = {"R", "G", "B", "A", "Z", "N.x", "N.y", "N.z", "id"};
+  spec.channelnames.assign(std::begin(kExrChannels), std::end(kExrChannels));
   spec.channelformats.assign(kFloats, OIIO::TypeDesc::FLOAT);
   spec.channelformats.push_back(OIIO::TypeDesc::UINT32);
   spec.alpha_channel = 3;

@@ -14,6 +14,9 @@ namespace cip::raycast {
 /// hit). Zip compression. Throws cip::Error naming the path on failure; the target is then left untouched.
 void writeExr(const RenderImage& image, const std::string& path);
 
+/// The EXR channel names, in the order above (the Python module names its arrays the same way).
+constexpr const char* kExrChannels[] = {"R", "G", "B", "A", "Z", "N.x", "N.y", "N.z", "id"};
+
 /// 8-bit sRGB RGB preview: the premultiplied colour composited over a dark grey background.
 void writePng(const RenderImage& image, const std::string& path);
 

@@ -18,7 +18,8 @@ import shutil
 import sys
 import tempfile
 
-STAGES = ["core", "topology", "volume", "readers", "reference", "patch", "model", "mesh", "measure"]
+STAGES = ["core", "topology", "volume", "readers", "reference", "patch", "model", "mesh", "meshio",
+          "measure"]
 MAX_FILES = 16
 MAX_LINES = 150
 INCLUDE = re.compile(r'^\s*#\s*include\s*[<"]([^>"]+)[>"]', re.M)

@@ -1,0 +1,112 @@
+"""cip: corner-patch isosurfaces from voxel volumes.
+
+    import numpy as np, cip
+    verts, faces, normals, values = cip.marching_cubes(volume, 0.5)      # scikit-image's conventions
+    model = cip.extract(volume, 0.5, spacing=(1, 1, 2))                    # smooth corner-patch model
+    model.save("v.cip"); cip.write_mesh("v.glb", *model.patch_mesh(subdiv=4))
+    image = cip.render(model, size=(640, 480))                             # dict of H x W arrays
+
+Errors from the library are cip.Error (a ValueError) with the library's message. Long calls release the GIL,
+report progress through `progress(fraction)` and stop cleanly on Ctrl-C (KeyboardInterrupt).
+"""
+import os
+import warnings
+
+import numpy as np
+
+from ._cip import Error, Model, load, write_mesh  # noqa: F401
+from . import _cip
+
+__all__ = ["Error", "Model", "extract", "load", "marching_cubes", "render", "write_mesh"]
+
+
+def _volume(volume):
+    """The array as the compiled part takes it: numeric, native byte order; a copy only for other dtypes."""
+    array = np.asarray(volume)
+    if array.dtype.kind not in "biuf":
+        raise TypeError("volume must be a numeric array, got dtype %s" % array.dtype)
+    if array.dtype.kind == "f" and array.dtype.itemsize not in (4, 8):
+        array = array.astype(np.float64)  # float16, longdouble
+    elif not array.dtype.isnative:
+        array = array.astype(array.dtype.newbyteorder("="))
+    return array
+
+
+def marching_cubes(volume, level=None, *, spacing=(1.0, 1.0, 1.0), gradient_direction="descent", step_size=1,
+                   allow_degenerate=True, method="lewiner", mask=None, threads=0):
+    """Marching cubes with scikit-image's conventions (skimage.measure.marching_cubes), on cip's own code.
+
+    Returns (verts (V, 3) float32 (float64 with a spacing other than 1), faces (F, 3) int32, normals (V, 3) float32, values (V,) float32): vertices
+    in the array's axis order scaled by `spacing`, at linear edge crossings; normals from central-difference
+    gradients, pointing towards lower values (outwards of an object of higher values), as scikit-image's do;
+    faces wound as scikit-image winds them for `gradient_direction` ('descent': the object has the higher
+    values); values as scikit-image defines them
+    (the largest range of samples among the cells around each vertex). Normals are world normals (scikit-image's
+    are index-space gradients, which differ from them when the spacing is not 1). Any numeric dtype, C or Fortran order or a strided
+    view: the samples are read once from the array's own buffer. `level` defaults to the middle of the data's
+    range. `method` 'lewiner' and 'lorensen' give the same mesh here (ambiguous faces are resolved by cip's
+    rule); `step_size` must be 1 and `mask` None. `allow_degenerate=False` drops zero-area triangles.
+    """
+    if method not in ("lewiner", "lorensen"):
+        raise ValueError("method should be one of 'lewiner' or 'lorensen'")
+    if gradient_direction not in ("descent", "ascent"):
+        raise ValueError("Incorrect input %s in `gradient_direction`, see docstring." % (gradient_direction,))
+    if int(step_size) != 1:
+        raise NotImplementedError("cip.marching_cubes supports step_size=1 only")
+    if mask is not None:
+        raise NotImplementedError("cip.marching_cubes does not support mask")
+    if len(spacing) != 3:
+        raise ValueError("`spacing` must consist of three floats.")
+    verts, faces, normals, values = _cip._marching_cubes(_volume(volume), level, tuple(spacing), threads)
+    if not len(verts):
+        raise RuntimeError("No surface found at the given iso value.")
+    if np.array_equal(spacing, (1, 1, 1)):
+        verts = verts.astype(np.float32)  # scikit-image's types: float32, or float64 once scaled by spacing
+    if gradient_direction == "ascent":
+        faces = np.ascontiguousarray(faces[:, ::-1])
+    if not allow_degenerate:
+        v = verts.astype(np.float64)
+        area2 = np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
+        faces = faces[area2 > 0]
+    return verts, faces, normals, values
+
+
+def extract(volume_or_path, level=None, *, spacing=None, origin=None, method="fitted", normals="gradient",
+            reconstruction="auto", threads=0, progress=None, skip_nonfinite=False, grid=""):
+    """Builds a corner-patch model (cip.Model) from a 3-D array or a volume file, as the `extract` command does.
+
+    volume_or_path: a numeric 3-D array (axis order = x, y, z of the model; spacing and origin place it in the
+    world, default 1 and 0) or a file the command reads (.nrrd/.nhdr, .nii/.nii.gz, .vdb; `grid` names the VDB
+    grid). level: the isovalue (default: the middle of an array's range, 0 for level sets; other files need
+    one). method 'fitted' or 'paper', normals 'gradient', 'edge' or 'exact', reconstruction 'auto', 'monotone'
+    or 'central8' as the command's flags. threads: 0 = all. progress: called with the fraction done in [0, 1].
+    Runs without the GIL; Ctrl-C stops it (KeyboardInterrupt), as does an exception raised by `progress`.
+    NaN or infinite samples at crossed cells raise cip.Error unless skip_nonfinite=True.
+    """
+    if isinstance(volume_or_path, (str, os.PathLike)):
+        volume_or_path = os.fspath(volume_or_path)
+        if not os.path.exists(volume_or_path):
+            raise FileNotFoundError(2, "No such file", volume_or_path)
+    else:
+        volume_or_path = _volume(volume_or_path)
+    model, lo, hi = _cip._extract(volume_or_path, level, spacing, origin, method, normals, reconstruction, threads,
+                                  progress, skip_nonfinite, grid)
+    if not (lo < model.isovalue < hi):
+        warnings.warn("isovalue %g is outside the data range [%g, %g]; the surface is empty" % (model.isovalue, lo, hi))
+    return model
+
+
+def render(model, eye=None, look=None, up=None, fov=35.0, size=(800, 600), *, shading="phong", spp=1,
+           shadows=False, ortho=False, curvature_range=None, threads=0, progress=None):
+    """Renders a model as the `raycast` command does; returns its EXR channels as a dict of H x W arrays.
+
+    Keys: 'R', 'G', 'B', 'A' (linear, premultiplied), 'Z' (distance along the pixel-centre ray, inf where it
+    misses), 'N.x', 'N.y', 'N.z' (world normal), all float32, and 'id' (uint32 cell index, 0xFFFFFFFF where
+    it misses). Unset eye, look and up frame the model as the command does; shading is 'phong', 'cells',
+    'normal', 'depth', 'curvature' or 'isophotes'. The same arguments give the same image as the command.
+    """
+    if not isinstance(model, Model):
+        raise TypeError("render needs a cip.Model, got %s" % type(model).__name__)
+    width, height = size
+    return _cip._render(model, eye, look, up, float(fov), (int(width), int(height)), shading, int(spp),
+                        bool(shadows), bool(ortho), curvature_range, int(threads), progress)
