@@ -18,6 +18,9 @@
 
 namespace cip::build {
 
+/// Where the fitted construction's coefficients start in BuildOptions::progress (they take most of its time).
+constexpr double kFitProgress = 0.6;
+
 Key GridKeys::cellEdge(const std::array<std::int64_t, 3>& cell, int e) const {
   auto c = cube::vertexCoords(cube::edgeVertex(e, 0));
   return point(cell[0] + c[0], cell[1] + c[1], cell[2] + c[2]) * 3 + cube::edgeAxis(e);
@@ -545,7 +548,8 @@ std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>
   const std::uint64_t corners = layOutCorners(cells, model.cells);
   reserveHuge(model.corners, corners);
   model.corners.resize(corners);
-  const bool keepLoops = fitsModelWide(in.options);  // the fitting works on them again
+  const bool keepLoops = fitsModelWide(in.options);   // the fitting works on them again
+  const double end = keepLoops ? kFitProgress : 1.0;  // the fitting reports from there
   std::vector<CellLoops> loops(keepLoops ? cells.size() : 0);
   std::atomic<std::size_t> cellsDone{0};
   tbb::parallel_for(
@@ -556,7 +560,7 @@ std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>
           if (keepLoops) loops[c] = cellLoops;
         }
         const std::size_t done = cellsDone += r.size();
-        in.progress.set(0.5 + 0.5 * static_cast<double>(done) / static_cast<double>(cells.size()));
+        in.progress.set(0.5 + (end - 0.5) * static_cast<double>(done) / static_cast<double>(cells.size()));
       });
   return loops;
 }
@@ -567,21 +571,25 @@ void fitCoefficients(const Input& in, const std::vector<CellRef>& cells, const S
   const double iso = options.isovalue;
   const Vec3 spacing = in.geometry.spacing;
   const Vec3 metric = Vec3::Constant(spacing.minCoeff()).cwiseQuotient(spacing);
-  FittingStats stats = fitModelPatches(model, loops, [&](std::size_t c, CellReference& ref) {
-    const auto& index = model.cells[c].index;  // as keys.coords(cells[c].key), without divisions
-    const std::array<std::int64_t, 3> gc{index[0], index[1], index[2]};
-    if (options.normals == NormalMode::Exact) {
-      ref = CellReference();
-      ref.field = options.exactField;
-      ref.geometry = &model.geometry;
-      ref.origin = Vec3(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
-      ref.isovalue = iso;
-    } else {
-      const GridBrick& b = in.bricks[cells[c].brick];
-      reference.tables[cells[c].brick].setReference(localPoint(b, gc), iso, ref);
-    }
-    ref.metric = metric;
-  });
+  FittingStats stats = fitModelPatches(
+      model, loops,
+      [&](std::size_t c, CellReference& ref) {
+        const auto& index = model.cells[c].index;  // as keys.coords(cells[c].key), without divisions
+        const std::array<std::int64_t, 3> gc{index[0], index[1], index[2]};
+        if (options.normals == NormalMode::Exact) {
+          ref = CellReference();
+          ref.field = options.exactField;
+          ref.geometry = &model.geometry;
+          ref.origin =
+              Vec3(static_cast<double>(gc[0]), static_cast<double>(gc[1]), static_cast<double>(gc[2]));
+          ref.isovalue = iso;
+        } else {
+          const GridBrick& b = in.bricks[cells[c].brick];
+          reference.tables[cells[c].brick].setReference(localPoint(b, gc), iso, ref);
+        }
+        ref.metric = metric;
+      },
+      [&](double fraction) { in.progress.set(kFitProgress + (1 - kFitProgress) * fraction); });
   if (reference.sampled) {
     model.reconstruction = reference.kind;
     stats.reconstruction = reference.kind;

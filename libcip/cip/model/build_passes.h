@@ -118,16 +118,16 @@ std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges, bool alreadyUnique 
 std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference& reference,
                                         const std::vector<EdgeRef>& edges);
 
-/// Pass 4, progress 0.5 to 1: model.cells and model.corners from `cells` (sorted by key) and the isovertices
-/// placed on `edges`: each cell's loops, corners and, with PatchMethod::Paper, its coefficients. Returns the
-/// cells' loops when fitsModelWide (for fitCoefficients), else nothing. Throws cip::Error when the corners
-/// exceed 2^32 - 1.
+/// Pass 4, progress 0.5 to 1 (to 0.6 when fitsModelWide): model.cells and model.corners from `cells` (sorted
+/// by key) and the isovertices placed on `edges`: each cell's loops, corners and, with PatchMethod::Paper,
+/// its coefficients. Returns the cells' loops when fitsModelWide (for fitCoefficients), else nothing. Throws
+/// cip::Error when the corners exceed 2^32 - 1.
 std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>& cells,
                                      const std::vector<EdgeRef>& edges, Model& model);
 
-/// Pass 5, when fitsModelWide: the side and central coefficients of every cell (fitModelPatches) against the
-/// reference (the analytic field in exact mode, else the tricubic interpolant of the cell's brick); records
-/// the reconstruction in the model and options.fittingStats.
+/// Pass 5 (progress 0.6 to 1), when fitsModelWide: the side and central coefficients of every cell
+/// (fitModelPatches) against the reference (the analytic field in exact mode, else the tricubic interpolant
+/// of the cell's brick); records the reconstruction in the model and options.fittingStats.
 void fitCoefficients(const Input& in, const std::vector<CellRef>& cells, const SampledReference& reference,
                      const std::vector<CellLoops>& loops, Model& model);
 

@@ -99,10 +99,12 @@ FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops
   return table;
 }
 
-FittingRounds::FittingRounds(Model& model, const std::vector<CellLoops>& loops, const Reference& reference)
+FittingRounds::FittingRounds(Model& model, const std::vector<CellLoops>& loops, const Reference& reference,
+                             const Progress& progress)
     : model_(model),
       loops_(loops),
       reference_(reference),
+      progress_(progress),
       numCells_(model.cells.size()),
       numVertices_(model.vertices.size()),
       baseNormal_(numVertices_),
@@ -322,7 +324,8 @@ void FittingRounds::runRounds(FittingStats& stats) {
       tbb::parallel_for(std::size_t(0), numVertices_, [&](std::size_t v) { setNormal(v); });
     else
       for (std::uint32_t v : changedVertices_) setNormal(v);
-    fitDirtyCells();
+    // Progress: the first round (every cell) to 0.85, each later one (fewer cells) part of what is left.
+    fitDirtyCells(round == 0 ? 0.0 : 1.0 - 0.15 / round, 1.0 - 0.15 / (round + 1));
     // A fallback round that does not reduce the unresolved cells is undone, and the rounds end: blending
     // normals cannot make a cell follow sign structure its loops do not have (a field with detail inside
     // cells), and there it only spreads failures to the neighbours (Marschner-Lobb at N = 32, exact: 160
@@ -352,9 +355,11 @@ void FittingRounds::runRounds(FittingStats& stats) {
 /// The faces and cells of the round. Cells in blocks of index order. A face is fitted by its first cell (the
 /// lowest index), so when a block's cells are fitted, every face they touch has been fitted in this block or
 /// an earlier one, and each cell's reference is built once per round for its faces and itself.
-void FittingRounds::fitDirtyCells() {
+void FittingRounds::fitDirtyCells(double from, double to) {
   const std::size_t block = std::max<std::size_t>(1, blockReference_.size());
   for (std::size_t b0 = 0; b0 < dirtyCells_.size(); b0 += block) {
+    if (progress_)
+      progress_(from + (to - from) * static_cast<double>(b0) / static_cast<double>(dirtyCells_.size()));
     const std::size_t b1 = std::min(dirtyCells_.size(), b0 + block);
     fitBlockFaces(b0, b1);
     for (std::size_t j = b0; j < b1; ++j)

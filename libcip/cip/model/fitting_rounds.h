@@ -43,9 +43,12 @@ FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops
 class FittingRounds {
  public:
   using Reference = std::function<void(std::size_t, CellReference&)>;
+  using Progress = std::function<void(double)>;
   /// As fitModelPatches: `loops[c]` are the loops of cell c, `reference(c, ref)` sets the reference of cell
-  /// c. The cells must be in grid order (buildFaceTable); the model must have at least one cell.
-  FittingRounds(Model& model, const std::vector<CellLoops>& loops, const Reference& reference);
+  /// c, `progress` (if set) hears the rounds' fraction done. The cells must be in grid order
+  /// (buildFaceTable); the model must have at least one cell.
+  FittingRounds(Model& model, const std::vector<CellLoops>& loops, const Reference& reference,
+                const Progress& progress = {});
 
   /// Step 5: every face and cell fitted with gradient normals, then rounds that blend the normals of the
   /// failed ones one level towards the edge direction and refit what they touch, while that reduces the
@@ -117,7 +120,7 @@ class FittingRounds {
   void restoreSaved(const std::vector<std::uint32_t>& cells);
 
   // The rounds.
-  void fitDirtyCells();
+  void fitDirtyCells(double from, double to);
   void fitBlockFaces(std::size_t b0, std::size_t b1);
   void fitBlockCells(std::size_t b0, std::size_t b1);
   void findNextDirtyCells();
@@ -132,6 +135,7 @@ class FittingRounds {
   Model& model_;
   const std::vector<CellLoops>& loops_;
   const Reference& reference_;
+  Progress progress_;
   const std::size_t numCells_, numVertices_;
   std::vector<Vec3> baseNormal_;        ///< gradient normal of every isovertex
   std::vector<std::uint8_t> edgeAxis_;  ///< edge axis of every isovertex (a byte: most cells write theirs)

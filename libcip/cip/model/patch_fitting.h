@@ -44,8 +44,11 @@ struct FittingStats {
 /// (model.loops(c); the builder has them already). `reference(c, ref)` sets `ref` to the reference of cell c
 /// (the fitting keeps a block of them in place); it is called concurrently. Runs in the caller's TBB arena.
 /// The cells must be in grid order (by z, then y, then x, each once), as the builder makes them; otherwise
-/// throws cip::Error.
+/// throws cip::Error. `progress` (if set) is called from the calling thread with the fraction of the rounds
+/// done, between blocks of cells; an exception it throws ends the fitting (the model is then left partly
+/// fitted).
 FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
-                             const std::function<void(std::size_t, CellReference&)>& reference);
+                             const std::function<void(std::size_t, CellReference&)>& reference,
+                             const std::function<void(double)>& progress = {});
 
 }  // namespace cip
