@@ -1,4 +1,6 @@
 // extract: volume -> corner-patch model (.cip), plus optional marching-cubes and patch meshes.
+#include <tbb/global_control.h>
+
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
@@ -203,6 +205,9 @@ cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options,
 }
 
 int run(const Options& opt) {
+  // --threads bounds every parallel part of the run (reading, sampling, the range scan), not the build alone.
+  std::optional<tbb::global_control> threadLimit;
+  if (opt.threads > 0) threadLimit.emplace(tbb::global_control::max_allowed_parallelism, opt.threads);
   cip::ExtractStats stats;
   stats.input = opt.input;
   auto t0 = Clock::now();

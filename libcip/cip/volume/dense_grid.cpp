@@ -1,5 +1,7 @@
 #include "cip/volume/dense_grid.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -49,13 +51,23 @@ void DenseGrid::allocate(const std::array<std::int64_t, 3>& dims, std::size_t ma
 }
 
 std::pair<double, double> DenseGrid::range() const {
-  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
-  for (double v : values) {
-    if (!std::isfinite(v)) continue;
-    lo = std::min(lo, v);
-    hi = std::max(hi, v);
-  }
-  return {lo, hi};
+  // Blocks in parallel (min and max do not depend on the order), for the volume-sized scan before a build.
+  using Range = std::pair<double, double>;
+  const double inf = std::numeric_limits<double>::infinity();
+  return tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, values.size(), 1 << 16), Range(inf, -inf),
+      [&](const tbb::blocked_range<std::size_t>& r, Range acc) {
+        for (std::size_t n = r.begin(); n != r.end(); ++n) {
+          const double v = values[n];
+          if (!std::isfinite(v)) continue;
+          acc.first = std::min(acc.first, v);
+          acc.second = std::max(acc.second, v);
+        }
+        return acc;
+      },
+      [](const Range& a, const Range& b) {
+        return Range(std::min(a.first, b.first), std::max(a.second, b.second));
+      });
 }
 
 std::int64_t DenseGrid::nonFiniteCount() const {
