@@ -349,13 +349,23 @@ def speed_targets(extraction):
     return rows
 
 
+# glibc's huge-page heap, as extract sets it for itself on inputs of 16 MB and more (extract/huge_page_restart.cpp)
+HUGE_HEAP = ("glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=4294967296:"
+             "glibc.malloc.top_pad=67108864")
+
+
 def debian_python():
-    """Debian's python3-numpy/matplotlib/vtk9 live in /usr/bin/python3's path; re-run there if another python3
-    (e.g. a pyenv one) started this script."""
-    if sys.executable != "/usr/bin/python3" and os.path.exists("/usr/bin/python3") and \
-            not os.environ.get("CIP_BENCH_REEXEC"):
-        os.environ["CIP_BENCH_REEXEC"] = "1"
-        os.execv("/usr/bin/python3", ["/usr/bin/python3"] + sys.argv)
+    """Re-runs this script under Debian's /usr/bin/python3 (python3-numpy/matplotlib/vtk9 live in its path) and with
+    glibc's huge-page heap in the environment, so that every process timed here (cip_bench and its OpenVDB peer, VTK
+    in this very process, raycast, vdb_render) runs on the same kind of heap as extract."""
+    python = "/usr/bin/python3" if os.path.exists("/usr/bin/python3") else sys.executable
+    heap_set = "glibc.malloc.hugetlb" in os.environ.get("GLIBC_TUNABLES", "")
+    if (sys.executable == python and heap_set) or os.environ.get("CIP_BENCH_REEXEC"):
+        return
+    os.environ["CIP_BENCH_REEXEC"] = "1"
+    if not heap_set:
+        os.environ["GLIBC_TUNABLES"] = HUGE_HEAP
+    os.execv(python, [python] + sys.argv)
 
 
 def main():
@@ -380,11 +390,7 @@ def main():
     bench = os.path.join(args.build_dir, "benchmarks", "cip_bench")
     quick = ["--quick"] if args.quick else []
     ex_csv = os.path.join(out, "extraction.csv")
-    # The heap on huge pages, as extract has it for inputs of 16 MB and more (docs/performance.md); the peers
-    # run in the same process and share it.
-    huge = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:"
-                "glibc.malloc.trim_threshold=4294967296:glibc.malloc.top_pad=67108864")  # extract/huge_page_restart.cpp
-    sh([bench, "extraction", "--csv", ex_csv, "--shared-data", args.shared_data] + quick, env=huge)
+    sh([bench, "extraction", "--csv", ex_csv, "--shared-data", args.shared_data] + quick)
     extraction = read_csv(ex_csv)
     vtk_rows, vtk_note = vtk_flying_edges(vtk_cases(extraction), os.cpu_count())
     extraction += vtk_rows
@@ -424,9 +430,9 @@ def main():
           "corner I-patch paper's construction, see docs/method.md). cip-marching-cubes: the project's "
           "marching cubes (isovertices and loops, then triangulation; `extract --mc-mesh`). "
           "openvdb-volumeToMesh: OpenVDB's mesher on the same samples (all voxels active). " + vtk_note + " Times "
-          "exclude reading or sampling the volume; cip_bench runs with glibc's huge-page heap "
-          "(GLIBC_TUNABLES as extract sets them for inputs of 16 MB and more: extract/huge_page_restart.cpp), which the peers "
-          "in the same process share. mri-colin27 is the Colin 27 T1 brain template (181x217x181, uint8, "
+          "exclude reading or sampling the volume. Every process of the run (cip_bench with its OpenVDB peer, VTK in "
+          "run.py's own Python, raycast, vdb_render) has glibc's huge-page heap, the GLIBC_TUNABLES that extract "
+          "sets for itself on inputs of 16 MB and more (extract/huge_page_restart.cpp). mri-colin27 is the Colin 27 T1 brain template (181x217x181, uint8, "
           "Debian's mricron-data) at isovalue 60.", "",
           table(extraction, ["case", "method", "threads", "seconds", "mcells_per_s", "output_count"],
                 {"seconds": "%.4f", "mcells_per_s": "%.2f"}), "",

@@ -20,16 +20,31 @@ constexpr char kMagic[8] = {'C', 'I', 'P', 'M', 'O', 'D', 'E', 'L'};
 constexpr std::size_t kVertexBytes = 7 * 8;
 constexpr std::size_t kMaxSourceBytes = 65536;
 
+/// Writes into a buffer sized beforehand (serializeModel counts the bytes first): a copy per field, no
+/// growth.
 class Writer {
  public:
-  std::vector<std::uint8_t> bytes;
+  explicit Writer(std::size_t size) {
+    reserveHuge(bytes, size);
+    bytes.resize(size);
+    at_ = bytes.data();
+  }
   template <class T>
   void put(T v) {
     static_assert(std::is_trivially_copyable_v<T>);
-    std::uint8_t b[sizeof(T)];
-    std::memcpy(b, &v, sizeof(T));  // the file is little-endian, like every platform cip supports
-    bytes.insert(bytes.end(), b, b + sizeof(T));
+    putBytes(&v, sizeof(T));  // the file is little-endian, like every platform cip supports
   }
+  void putBytes(const void* data, std::size_t n) {
+    if (n > static_cast<std::size_t>(bytes.data() + bytes.size() - at_))
+      throw Error("serializeModel: more bytes than counted");
+    std::memcpy(at_, data, n);
+    at_ += n;
+  }
+  std::size_t written() const { return static_cast<std::size_t>(at_ - bytes.data()); }
+  std::vector<std::uint8_t> bytes;
+
+ private:
+  std::uint8_t* at_;
 };
 
 class Reader {
@@ -80,9 +95,15 @@ std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
 }  // namespace
 
 std::vector<std::uint8_t> serializeModel(const Model& m) {
-  Writer w;
-  reserveHuge(w.bytes, 128 + m.source.size() + m.vertices.size() * kVertexBytes + m.cells.size() * 64 +
-                           m.corners.size() * 4);
+  const std::string source = m.source.substr(0, kMaxSourceBytes);
+  // Magic, version, dims, origin, spacing, isovalue and four single bytes (96), the source's length and
+  // bytes, the three counts, the tables (a cell: index, three bytes, four loop sizes, central, a side
+  // coefficient per crossed face; its corners are counted with the corner table) and the CRC.
+  std::size_t size =
+      96 + 4 + source.size() + 24 + m.vertices.size() * kVertexBytes + m.corners.size() * 4 + 4;
+  for (const ModelCell& c : m.cells)
+    size += 12 + 3 + 4 + 8 + 8 * static_cast<std::size_t>(__builtin_popcount(cube::crossedFaces(c.config)));
+  Writer w(size);
   for (char c : kMagic) w.put(c);
   w.put<std::uint32_t>(kModelFileVersion);
   for (auto d : m.geometry.dims) w.put<std::int64_t>(d);
@@ -94,9 +115,8 @@ std::vector<std::uint8_t> serializeModel(const Model& m) {
   w.put<std::uint8_t>(m.reconstruction ? static_cast<std::uint8_t>(1 + static_cast<int>(*m.reconstruction))
                                        : 0);
   w.put<std::uint8_t>(0);
-  std::string source = m.source.substr(0, kMaxSourceBytes);
   w.put<std::uint32_t>(static_cast<std::uint32_t>(source.size()));
-  w.bytes.insert(w.bytes.end(), source.begin(), source.end());
+  w.putBytes(source.data(), source.size());
   w.put<std::uint64_t>(m.vertices.size());
   w.put<std::uint64_t>(m.cells.size());
   w.put<std::uint64_t>(m.corners.size());
@@ -117,7 +137,10 @@ std::vector<std::uint8_t> serializeModel(const Model& m) {
       if ((faces >> f) & 1) w.put<double>(c.faceCoefficient[f]);
     w.put<double>(c.central);
   }
-  w.put<std::uint32_t>(crc(w.bytes.data(), w.bytes.size()));
+  w.put<std::uint32_t>(crc(w.bytes.data(), w.written()));
+  if (w.written() != size)
+    throw Error("serializeModel: " + std::to_string(w.written()) + " bytes written, " + std::to_string(size) +
+                " counted");
   return std::move(w.bytes);
 }
 
