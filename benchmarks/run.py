@@ -219,6 +219,13 @@ def plot(fidelity, extraction, render_rows, out):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     plots = []
+
+    def finish(fig, name):
+        fig.tight_layout()
+        path = os.path.join(out, name)
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        plots.append(path)
     fields = sorted({r["field"] for r in fidelity})
     methods = sorted({r["method"] for r in fidelity})
     for metric, label in (("dist_mean", "mean distance to the true surface (voxels)"),
@@ -233,11 +240,7 @@ def plot(fidelity, extraction, render_rows, out):
             ax.set_xlabel("N (cells per axis)")
             ax.set_ylabel(label)
         axes[0][0].legend(fontsize=6)
-        fig.tight_layout()
-        path = os.path.join(out, "fidelity-%s.png" % metric)
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        plots.append(path)
+        finish(fig, "fidelity-%s.png" % metric)
     analytic = [r for r in extraction if r["case"].split("-")[0] in ("sphere", "torus", "gyroid")
                 and r["case"].split("-")[-1].isdigit()]
     if analytic:
@@ -251,11 +254,7 @@ def plot(fidelity, extraction, render_rows, out):
         ax.set_xlabel("N (cells per axis)")
         ax.set_ylabel("seconds")
         ax.legend(fontsize=7)
-        fig.tight_layout()
-        path = os.path.join(out, "extraction-time.png")
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        plots.append(path)
+        finish(fig, "extraction-time.png")
     cells = {r["case"]: int(r["output_count"]) for r in extraction if r["method"] == "cip-patches-fitted"}
     one = [r for r in extraction if int(r["threads"]) == 1 and cells.get(r["case"])]
     if one:
@@ -272,11 +271,7 @@ def plot(fidelity, extraction, render_rows, out):
         ax.set_ylabel("microseconds per patch cell")
         ax.set_ylim(bottom=0)
         ax.legend(fontsize=7)
-        fig.tight_layout()
-        path = os.path.join(out, "extraction-per-cell.png")
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        plots.append(path)
+        finish(fig, "extraction-per-cell.png")
     sph = [r for r in render_rows if r["case"].startswith("sphere-")]
     if len({r["case"] for r in sph}) > 1:
         fig, ax = plt.subplots(figsize=(6, 4))
@@ -287,11 +282,7 @@ def plot(fidelity, extraction, render_rows, out):
         ax.set_xlabel("N (cells per axis)")
         ax.set_ylabel("seconds")
         ax.legend(fontsize=7)
-        fig.tight_layout()
-        path = os.path.join(out, "render-time.png")
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        plots.append(path)
+        finish(fig, "render-time.png")
     return plots
 
 
