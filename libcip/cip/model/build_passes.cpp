@@ -506,10 +506,17 @@ SampledReference prepareReference(const Input& in, const std::vector<CellRef>& c
   // The data at the corners of each brick's crossed cells, once per grid point.
   reference.tables.resize(in.bricks.size());
   std::vector<std::vector<std::int64_t>> brickCells(in.bricks.size());
-  for (const CellRef& c : cells) {
+  auto localIndex = [&](const CellRef& c) {
     const GridBrick& b = in.bricks[c.brick];
     const auto lp = localPoint(b, in.keys.coords(c.key));
-    brickCells[c.brick].push_back(b.grid->index(lp[0], lp[1], lp[2]));
+    return b.grid->index(lp[0], lp[1], lp[2]);
+  };
+  if (in.bricks.size() == 1) {  // every cell in order: in parallel
+    brickCells[0].resize(cells.size());
+    tbb::parallel_for(std::size_t(0), cells.size(),
+                      [&](std::size_t n) { brickCells[0][n] = localIndex(cells[n]); });
+  } else {
+    for (const CellRef& c : cells) brickCells[c.brick].push_back(localIndex(c));
   }
   tbb::parallel_for(std::size_t(0), in.bricks.size(), [&](std::size_t bi) {
     if (!brickCells[bi].empty())

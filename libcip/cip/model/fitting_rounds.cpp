@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <limits>
 #include <numeric>
 
 #include "cip/core/error.h"
@@ -54,48 +55,95 @@ FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops
     const auto& p = model.cells[c].index;
     return p[0] * step[0] + p[1] * step[1] + p[2] * step[2];
   };
+  // In three parallel passes over chunks of cells, numbering the faces as one pass in raster order would:
+  // (1) each cell's new faces (ownedFaces) and, for each near face it shares, the cell below (one cursor per
+  // axis and chunk); (2) the first index of each cell's new faces (a prefix sum); (3) the new faces; (4) the
+  // shared ones, each written by its second cell alone.
+  constexpr std::size_t kChunk = 4096;
   FaceTable table;
-  std::vector<FaceEntry>& faces = table.faces;
-  auto& cellFaces = table.cellFaces;
-  table.ownedFaces.assign(numCells, 0);
-  cellFaces.resize(numCells);
-  for (auto& cf : cellFaces) cf.fill(-1);
-  std::size_t bounding = 0;
-  for (const CellLoops& l : loops) bounding += static_cast<std::size_t>(__builtin_popcount(l.faceMask));
-  faces.reserve(bounding / 2 + numCells);
-  std::array<std::size_t, 3> cursor{};
-  for (std::size_t c = 0; c < numCells; ++c) {
-    const std::uint64_t k = key(c);
-    if (c > 0 && k <= key(c - 1))
-      throw Error("fitModelPatches: cells must be in grid order (by z, y, x), each once");
-    for (int f = 0; f < 6; ++f) {
-      if (!((loops[c].faceMask >> f) & 1)) continue;
-      const int axis = cube::faceAxis(f);
-      if (cube::faceSide(f) == 0 && model.cells[c].index[axis] > 0) {
-        const std::uint64_t below = k - step[axis];
-        std::size_t& at = cursor[axis];
-        while (at < c && key(at) < below) ++at;
-        if (at < c && key(at) == below) {
-          const std::int32_t i = cellFaces[at][f + 1];
-          if (i >= 0) {
-            FaceEntry& e = faces[static_cast<std::size_t>(i)];
-            e.cell[1] = static_cast<std::uint32_t>(c);
-            e.face[1] = static_cast<std::int8_t>(f);
-            e.count = 2;
-            cellFaces[c][f] = i;
-            continue;
+  table.ownedFaces.resize(numCells);
+  std::vector<std::array<std::uint32_t, 3>> below(numCells);
+  std::atomic<bool> ordered{true};
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, numCells, kChunk), [&](const tbb::blocked_range<std::size_t>& r) {
+        std::array<std::size_t, 3> cursor;
+        for (int a = 0; a < 3; ++a) {  // the first cell at or after the first cell's neighbour below
+          const std::uint64_t k = key(r.begin());
+          const std::uint64_t target = k >= step[a] ? k - step[a] : 0;
+          std::size_t lo = 0, hi = r.begin();
+          while (lo < hi) {
+            const std::size_t mid = (lo + hi) / 2;
+            if (key(mid) < target)
+              lo = mid + 1;
+            else
+              hi = mid;
           }
+          cursor[a] = lo;
         }
-      }
-      FaceEntry e;
-      e.cell[0] = static_cast<std::uint32_t>(c);
-      e.face[0] = static_cast<std::int8_t>(f);
-      e.count = 1;
-      cellFaces[c][f] = static_cast<std::int32_t>(faces.size());
-      table.ownedFaces[c] = static_cast<std::uint8_t>(table.ownedFaces[c] | (1u << f));
-      faces.push_back(e);
-    }
+        for (std::size_t c = r.begin(); c != r.end(); ++c) {
+          const std::uint64_t k = key(c);
+          if (c > 0 && k <= key(c - 1)) ordered = false;
+          std::uint8_t owned = 0;
+          for (int f = 0; f < 6; ++f) {
+            if (!((loops[c].faceMask >> f) & 1)) continue;
+            const int axis = cube::faceAxis(f);
+            if (cube::faceSide(f) == 0 && model.cells[c].index[axis] > 0) {
+              const std::uint64_t down = k - step[axis];
+              std::size_t& at = cursor[static_cast<std::size_t>(axis)];
+              while (at < c && key(at) < down) ++at;
+              if (at < c && key(at) == down && ((loops[at].faceMask >> (f + 1)) & 1)) {
+                below[c][static_cast<std::size_t>(axis)] = static_cast<std::uint32_t>(at);
+                continue;
+              }
+            }
+            owned = static_cast<std::uint8_t>(owned | (1u << f));
+          }
+          table.ownedFaces[c] = owned;
+        }
+      });
+  if (!ordered) throw Error("fitModelPatches: cells must be in grid order (by z, y, x), each once");
+  std::vector<std::uint32_t> first(numCells);
+  std::size_t total = 0;
+  for (std::size_t c = 0; c < numCells; ++c) {
+    first[c] = static_cast<std::uint32_t>(total);
+    total += static_cast<std::size_t>(__builtin_popcount(table.ownedFaces[c]));
   }
+  if (total > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()))
+    throw Error("fitModelPatches: too many faces");
+  table.faces.resize(total);
+  table.cellFaces.resize(numCells);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numCells, kChunk),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t c = r.begin(); c != r.end(); ++c) {
+                        auto& cf = table.cellFaces[c];
+                        cf.fill(-1);
+                        std::uint32_t i = first[c];
+                        for (int f = 0; f < 6; ++f) {
+                          if (!((table.ownedFaces[c] >> f) & 1)) continue;
+                          FaceEntry& e = table.faces[i];
+                          e.cell[0] = static_cast<std::uint32_t>(c);
+                          e.face[0] = static_cast<std::int8_t>(f);
+                          e.count = 1;
+                          cf[static_cast<std::size_t>(f)] = static_cast<std::int32_t>(i++);
+                        }
+                      }
+                    });
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numCells, kChunk),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t c = r.begin(); c != r.end(); ++c) {
+                        const unsigned shared = loops[c].faceMask & ~table.ownedFaces[c];
+                        for (int f = 0; f < 6; ++f) {
+                          if (!((shared >> f) & 1)) continue;
+                          const std::uint32_t at = below[c][static_cast<std::size_t>(cube::faceAxis(f))];
+                          const std::int32_t i = table.cellFaces[at][static_cast<std::size_t>(f + 1)];
+                          FaceEntry& e = table.faces[static_cast<std::size_t>(i)];
+                          e.cell[1] = static_cast<std::uint32_t>(c);
+                          e.face[1] = static_cast<std::int8_t>(f);
+                          e.count = 2;
+                          table.cellFaces[c][static_cast<std::size_t>(f)] = i;
+                        }
+                      }
+                    });
   return table;
 }
 

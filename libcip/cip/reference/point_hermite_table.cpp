@@ -24,15 +24,18 @@ PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<st
   const auto& dims = grid.geometry.dims;
   const std::int64_t dx = dims[0], dxy = dims[0] * dims[1];
   present_.assign(static_cast<std::size_t>((grid.geometry.pointCount() + 63) / 64), 0);
+  // The corners of the cells, marked in parallel (bits of one word may come from several threads).
   auto mark = [&](std::int64_t index) {
-    present_[static_cast<std::size_t>(index >> 6)] |= std::uint64_t(1) << (index & 63);
+    __atomic_fetch_or(&present_[static_cast<std::size_t>(index >> 6)], std::uint64_t(1) << (index & 63),
+                      __ATOMIC_RELAXED);
   };
-  for (std::int64_t c : cells) {
+  tbb::parallel_for(std::size_t(0), cells.size(), [&](std::size_t n) {
+    const std::int64_t c = cells[n];
     for (std::int64_t corner : {c, c + dx, c + dxy, c + dx + dxy}) {
       mark(corner);
       mark(corner + 1);
     }
-  }
+  });
   before_.resize(present_.size());
   std::uint64_t total = 0;
   for (std::size_t w = 0; w < present_.size(); ++w) {
