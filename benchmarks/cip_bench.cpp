@@ -87,21 +87,6 @@ std::size_t plyBytes(const cip::TriangleMesh& mesh) {
   return n;
 }
 
-/// Bytes of a volume file, plus its detached data file for NRRD headers (.nhdr).
-std::size_t inputFileBytes(const std::string& path) {
-  std::size_t bytes = std::filesystem::file_size(path);
-  std::ifstream in(path);
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("data file:", 0) != 0) continue;
-    std::string name = line.substr(10);
-    name.erase(0, name.find_first_not_of(' '));
-    auto data = std::filesystem::path(path).parent_path() / name;
-    if (std::filesystem::exists(data)) bytes += std::filesystem::file_size(data);
-  }
-  return bytes;
-}
-
 struct Case {
   std::string name;    // e.g. sphere-128, tooth
   std::string source;  // analytic | file path
@@ -162,7 +147,7 @@ void extraction(const std::string& csvPath, bool quick, const std::string& share
     } else {
       cip::SparseVolume v = cip::readVolume(c.source);
       grid = std::move(*const_cast<cip::DenseGrid*>(v.dense()));
-      c.inputBytes = inputFileBytes(c.source);
+      c.inputBytes = cip::volumeFileBytes(c.source);
     }
     const auto& d = grid.geometry.dims;
     const double cells = static_cast<double>((d[0] - 1) * (d[1] - 1) * (d[2] - 1));

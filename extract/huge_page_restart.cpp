@@ -2,10 +2,11 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
-#include <filesystem>
-#include <fstream>
+
+#include "cip/readers/volume_reader.h"
 
 namespace cip {
 
@@ -18,28 +19,6 @@ constexpr const char* kTunable =
     "glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=4294967296:"
     "glibc.malloc.top_pad=67108864";
 
-/// Bytes of an input file, plus the data file an NRRD header names (detached data); 0 when it is no file.
-double inputBytes(const std::string& path) {
-  std::error_code ec;
-  const auto size = std::filesystem::file_size(path, ec);
-  if (ec) return 0;
-  double bytes = static_cast<double>(size);
-  const std::filesystem::path p(path);
-  if (p.extension() != ".nhdr") return bytes;
-  std::ifstream in(path);
-  std::string line;
-  for (int n = 0; n < 256 && std::getline(in, line); ++n) {
-    if (line.rfind("data file:", 0) != 0 && line.rfind("datafile:", 0) != 0) continue;
-    std::string name = line.substr(line.find(':') + 1);
-    name.erase(0, name.find_first_not_of(' '));
-    const auto data = p.parent_path() / name;
-    const auto dataSize = std::filesystem::file_size(data, ec);
-    if (!ec) bytes += static_cast<double>(dataSize);
-    break;
-  }
-  return bytes;
-}
-
 }  // namespace
 
 void restartWithHugePages(char** argv, const std::string& input, double analyticPoints, double minBytes) {
@@ -49,7 +28,7 @@ void restartWithHugePages(char** argv, const std::string& input, double analytic
   if ((tunables && std::strstr(tunables, "glibc.malloc.hugetlb")) ||
       (wanted && std::strcmp(wanted, "0") == 0))
     return;
-  if (std::max(inputBytes(input), analyticPoints * 4) < minBytes) return;
+  if (std::max(static_cast<double>(volumeFileBytes(input)), analyticPoints * 4) < minBytes) return;
   const std::string value = tunables && *tunables ? std::string(tunables) + ":" + kTunable : kTunable;
   if (setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
   execv("/proc/self/exe", argv);

@@ -85,8 +85,7 @@ Input readInput(const Options& opt, const cip::BuildOptions& build, cip::Extract
   if (!isFile && (in.field = cip::makeAnalyticField(opt.input))) {
     in.volume = cip::fromDense(cip::sampleField(
         *in.field, opt.resolution,
-        opt.input + " sampled at " + std::to_string(opt.resolution) + " cells per axis over [-1,1]^3",
-        opt.threads));
+        opt.input + " sampled at " + std::to_string(opt.resolution) + " cells per axis over [-1,1]^3"));
     in.defaultIso = in.field->defaultIsovalue();
     stats.inputType = "analytic field " + opt.input;
     return in;

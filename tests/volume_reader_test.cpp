@@ -3,10 +3,14 @@
 
 #include <gtest/gtest.h>
 
+#include <filesystem>
+#include <fstream>
+
 #include "cip/model/model_builder.h"
 #include "cip/model/model_file.h"
 #include "cip/readers/nifti_reader.h"
 #include "cip/readers/nrrd_reader.h"
+#include "support/scratch_dir.h"
 #include "support/volume_files.h"
 
 namespace cip {
@@ -23,6 +27,28 @@ TEST(VolumeReader, FormatFromName) {
   EXPECT_EQ(volumeFormatOf("x.vdb"), VolumeFormat::Vdb);
   EXPECT_EQ(volumeFormatOf("x.raw"), VolumeFormat::Raw);
   EXPECT_EQ(volumeFormatOf("x.gz"), VolumeFormat::Raw);
+}
+
+TEST(VolumeReader, FileBytesCountDetachedData) {
+  test::ScratchDir dir;
+  auto write = [&](const std::string& name, const std::string& text) {
+    std::ofstream(dir.file(name), std::ios::binary) << text;
+    return dir.file(name);
+  };
+  const std::string data = write("d.raw", std::string(1000, 'x'));
+  const std::string header =
+      "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 10 10 10\nencoding: raw\ndata file: d.raw\n";
+  const std::string nhdr = write("v.nhdr", header);
+  EXPECT_EQ(volumeFileBytes(nhdr), header.size() + 1000);
+  EXPECT_EQ(volumeFileBytes(data), 1000u);
+  // A header naming a missing data file, or no header at all, counts as its own bytes; no file as nothing.
+  const std::string dangling = write("w.nhdr",
+                                     "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 10 10 10\n"
+                                     "encoding: raw\ndata file: gone.raw\n");
+  EXPECT_EQ(volumeFileBytes(dangling), std::filesystem::file_size(dangling));
+  const std::string garbage = write("g.nhdr", "not a header");
+  EXPECT_EQ(volumeFileBytes(garbage), 12u);
+  EXPECT_EQ(volumeFileBytes(dir.file("none.nrrd")), 0u);
 }
 
 TEST(VolumeReader, NrrdAsOneBrick) {

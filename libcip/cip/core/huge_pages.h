@@ -21,4 +21,11 @@ void reserveHuge(std::vector<T>& v, std::size_t n) {
   adviseHugePages(v.data(), v.capacity() * sizeof(T));
 }
 
+/// v.resize(n), new storage advised as above before the new elements are first written.
+template <class T>
+void resizeHuge(std::vector<T>& v, std::size_t n) {
+  reserveHuge(v, n);
+  v.resize(n);
+}
+
 }  // namespace cip

@@ -38,6 +38,9 @@ bool sameKey(const EdgeRef& x, const EdgeRef& y) {
 
 // ---- Pass 1: scan ----
 
+/// Rows per task of the scan's parallel loops (the cells' rows and, in brickEdges, the points' rows).
+constexpr std::int64_t kRowChunk = 64;
+
 /// The first cell the scan's workers found with a non-finite corner value.
 struct NonFiniteCell {
   std::atomic<bool> found{false};
@@ -166,8 +169,7 @@ template <class T>
 void appendRows(const std::vector<std::vector<T>>& rows, std::vector<T>& out) {
   std::vector<std::size_t> offset(rows.size() + 1, out.size());
   for (std::size_t r = 0; r < rows.size(); ++r) offset[r + 1] = offset[r] + rows[r].size();
-  reserveHuge(out, offset.back());
-  out.resize(offset.back());
+  resizeHuge(out, offset.back());
   tbb::parallel_for(std::size_t(0), rows.size(), [&](std::size_t r) {
     std::copy(rows[r].begin(), rows[r].end(), out.begin() + static_cast<std::ptrdiff_t>(offset[r]));
   });
@@ -178,7 +180,6 @@ void appendRows(const std::vector<std::vector<T>>& rows, std::vector<T>& out) {
 /// of the isovalue is an edge of one of its crossed cells, and the edges of a point row, in key order, are
 /// those from its points in x order (axes 0, 1, 2 at each point). Rows go in parallel chunks.
 std::vector<EdgeRef> brickEdges(const Input& in, std::uint32_t bi, const std::vector<PointRow>& rows) {
-  constexpr std::int64_t kChunk = 64;
   const GridBrick& b = in.bricks[bi];
   const DenseGrid& g = *b.grid;
   const double iso = in.options.isovalue;
@@ -189,12 +190,12 @@ std::vector<EdgeRef> brickEdges(const Input& in, std::uint32_t bi, const std::ve
     lo = a.firstPositive != c.firstPositive ? x0 : std::min(a.firstChange, c.firstChange) + 1;
     hi = a.lastPositive != c.lastPositive ? x1 : std::max(a.lastChange, c.lastChange);
   };
-  const std::int64_t chunks = (ny * nz + kChunk - 1) / kChunk;
+  const std::int64_t chunks = (ny * nz + kRowChunk - 1) / kRowChunk;
   std::vector<std::vector<EdgeRef>> chunkEdges(static_cast<std::size_t>(chunks));
   tbb::parallel_for(std::int64_t(0), chunks, [&](std::int64_t chunk) {
     auto& out = chunkEdges[static_cast<std::size_t>(chunk)];
-    const std::int64_t end = std::min(ny * nz, (chunk + 1) * kChunk);
-    for (std::int64_t n = chunk * kChunk; n < end; ++n) {
+    const std::int64_t end = std::min(ny * nz, (chunk + 1) * kRowChunk);
+    for (std::int64_t n = chunk * kRowChunk; n < end; ++n) {
       const std::int64_t jr = n % ny, kr = n / ny, j = b.cellBegin[1] + jr, k = b.cellBegin[2] + kr;
       const PointRow& a = rows[static_cast<std::size_t>(n)];
       const bool hasY = jr + 1 < ny, hasZ = kr + 1 < nz;
@@ -222,10 +223,9 @@ std::vector<EdgeRef> brickEdges(const Input& in, std::uint32_t bi, const std::ve
   return edges;
 }
 
-/// Brick `bi`'s rows in parallel, appended to `scan` in row order. Rows go in chunks of kScanChunk, each with
+/// Brick `bi`'s rows in parallel, appended to `scan` in row order. Rows go in chunks of kRowChunk, each with
 /// its own output, so that few vectors grow (a vector per row made the scan mostly page faults).
 void scanBrick(const Input& in, std::uint32_t bi, RowCount& rows, NonFiniteCell& bad, CellScan& scan) {
-  constexpr std::int64_t kScanChunk = 64;
   const GridBrick& b = in.bricks[bi];
   std::int64_t ny = b.cellEnd[1] - b.cellBegin[1], nz = b.cellEnd[2] - b.cellBegin[2];
   if (ny <= 0 || nz <= 0 || b.cellEnd[0] <= b.cellBegin[0]) return;
@@ -233,21 +233,21 @@ void scanBrick(const Input& in, std::uint32_t bi, RowCount& rows, NonFiniteCell&
   // One brick with finite samples: its edges come from the point rows, already in key order (brickEdges).
   const bool fromRows = in.bricks.size() == 1 && std::none_of(pointRows.begin(), pointRows.end(),
                                                               [](const PointRow& r) { return r.nonFinite; });
-  const std::int64_t chunks = (ny * nz + kScanChunk - 1) / kScanChunk;
+  const std::int64_t chunks = (ny * nz + kRowChunk - 1) / kRowChunk;
   std::vector<std::vector<CellRef>> chunkCells(static_cast<std::size_t>(chunks));
   std::vector<std::vector<EdgeRef>> chunkEdges(chunkCells.size());
   tbb::parallel_for(std::int64_t(0), chunks, [&](std::int64_t chunk) {
     thread_local std::vector<EdgeRef> rowEdges;
     auto& cells = chunkCells[static_cast<std::size_t>(chunk)];
     auto& edges = chunkEdges[static_cast<std::size_t>(chunk)];
-    const std::int64_t end = std::min(ny * nz, (chunk + 1) * kScanChunk);
-    for (std::int64_t row = chunk * kScanChunk; row < end; ++row) {
+    const std::int64_t end = std::min(ny * nz, (chunk + 1) * kRowChunk);
+    for (std::int64_t row = chunk * kRowChunk; row < end; ++row) {
       rowEdges.clear();
       scanRow(in, bi, b.cellBegin[1] + row % ny, b.cellBegin[2] + row / ny, pointRows, !fromRows, cells,
               rowEdges, bad);
       edges.insert(edges.end(), rowEdges.begin(), rowEdges.end());
     }
-    const std::int64_t done = rows.done += end - chunk * kScanChunk;
+    const std::int64_t done = rows.done += end - chunk * kRowChunk;
     in.progress.set(0.3 * static_cast<double>(done) / static_cast<double>(rows.total));
   });
   appendRows(chunkCells, scan.cells);
@@ -538,8 +538,7 @@ std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges, bool alreadyUnique)
 std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference& reference,
                                         const std::vector<EdgeRef>& edges) {
   std::vector<IsoVertex> vertices;
-  reserveHuge(vertices, edges.size());
-  vertices.resize(edges.size());
+  resizeHuge(vertices, edges.size());
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, edges.size()),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t n = r.begin(); n != r.end(); ++n)
@@ -550,11 +549,9 @@ std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference&
 
 std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>& cells,
                                      const std::vector<EdgeRef>& edges, Model& model) {
-  reserveHuge(model.cells, cells.size());
-  model.cells.resize(cells.size());
+  resizeHuge(model.cells, cells.size());
   const std::uint64_t corners = layOutCorners(cells, model.cells);
-  reserveHuge(model.corners, corners);
-  model.corners.resize(corners);
+  resizeHuge(model.corners, corners);
   const bool keepLoops = fitsModelWide(in.options);   // the fitting works on them again
   const double end = keepLoops ? kFitProgress : 1.0;  // the fitting reports from there
   std::vector<CellLoops> loops(keepLoops ? cells.size() : 0);

@@ -25,8 +25,7 @@ constexpr std::size_t kMaxSourceBytes = 65536;
 class Writer {
  public:
   explicit Writer(std::size_t size) {
-    reserveHuge(bytes, size);
-    bytes.resize(size);
+    resizeHuge(bytes, size);
     at_ = bytes.data();
   }
   template <class T>
@@ -215,8 +214,7 @@ TableCounts readTableCounts(Reader& r) {
 }
 
 void readVertices(Reader& r, std::uint64_t count, Model& m) {
-  reserveHuge(m.vertices, count);
-  m.vertices.resize(count);
+  resizeHuge(m.vertices, count);
   for (IsoVertex& v : m.vertices) {
     for (int a = 0; a < 3; ++a) v.position[a] = r.getFinite("vertex position");
     for (int a = 0; a < 3; ++a) v.normal[a] = r.getFinite("vertex normal");
@@ -278,10 +276,8 @@ void readCellCorners(Reader& r, Model& m, std::uint64_t ci, const CellLoops& loo
 /// The cell table: per cell its head, corners and coefficients (a side coefficient per crossed face, the
 /// central one).
 void readCells(Reader& r, const TableCounts& counts, Model& m) {
-  reserveHuge(m.cells, counts.cells);
-  m.cells.resize(counts.cells);
-  reserveHuge(m.corners, counts.corners);
-  m.corners.resize(counts.corners);
+  resizeHuge(m.cells, counts.cells);
+  resizeHuge(m.corners, counts.corners);
   std::uint64_t cornersSoFar = 0;
   std::uint64_t prevKey = 0;
   for (std::uint64_t ci = 0; ci < counts.cells; ++ci) {
@@ -331,8 +327,7 @@ Model readModel(const std::string& path) {
   std::streamoff size = in.tellg();
   if (size < 0) throw Error(path + ": cannot read model file");
   std::vector<std::uint8_t> bytes;
-  reserveHuge(bytes, static_cast<std::size_t>(size));
-  bytes.resize(static_cast<std::size_t>(size));
+  resizeHuge(bytes, static_cast<std::size_t>(size));
   in.seekg(0);
   if (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), size)) throw Error(path + ": read failed");
   return parseModel(bytes.data(), bytes.size(), path);

@@ -490,20 +490,25 @@ void readAsciiInto(ByteSource& source, DenseGrid& grid) {
 
 }  // namespace
 
+std::string nrrdDataPath(const std::string& path, const NrrdHeader& h) {
+  if (h.attached) return path;
+  std::string dataPath = h.dataFile;
+  const std::size_t slash = path.find_last_of('/');
+  if (dataPath[0] != '/' && slash != std::string::npos) dataPath = path.substr(0, slash + 1) + dataPath;
+  return dataPath;
+}
+
 DenseGrid readNrrd(const std::string& path, std::size_t maxBytes) {
   NrrdHeader h = readNrrdHeader(path);
   const std::size_t size = sampleSize(h.type);
   const std::int64_t count = checkVolumeDims(path, h.dims, size, maxBytes);
   const std::uint64_t dataBytes = static_cast<std::uint64_t>(count) * size;
 
-  std::string dataPath = path;
+  const std::string dataPath = nrrdDataPath(path, h);
   std::uint64_t start = 0;
   if (h.attached) {
     start = h.headerBytes;
   } else {
-    dataPath = h.dataFile;
-    std::size_t slash = path.find_last_of('/');
-    if (dataPath[0] != '/' && slash != std::string::npos) dataPath = path.substr(0, slash + 1) + dataPath;
     try {
       fileSizeOf(dataPath);
     } catch (const Error& e) {

@@ -52,6 +52,10 @@ NrrdHeader parseNrrdHeader(std::string_view text);
 /// Reads and parses the header of the NRRD file `path`; errors are prefixed with the path.
 NrrdHeader readNrrdHeader(const std::string& path);
 
+/// Where the samples of the NRRD file `path` with header `h` are: `path` itself when attached, else the data
+/// file, relative to the header's folder unless absolute.
+std::string nrrdDataPath(const std::string& path, const NrrdHeader& h);
+
 /// Reads a NRRD volume. Throws cip::Error (message starting with the path) for any header problem, a missing
 /// data file, data of the wrong size (raw) or that inflates to a size other than declared (gzip; stopped as
 /// soon as it goes past), corrupt compressed data, or dims over `maxBytes` of doubles (checked before

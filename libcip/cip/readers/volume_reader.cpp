@@ -1,5 +1,6 @@
 #include "cip/readers/volume_reader.h"
 
+#include <filesystem>
 #include <sstream>
 
 #include "cip/core/error.h"
@@ -29,6 +30,22 @@ VolumeFormat volumeFormatOf(const std::string& path) {
   if (endsWithNoCase(path, ".nii") || endsWithNoCase(path, ".nii.gz")) return VolumeFormat::Nifti;
   if (endsWithNoCase(path, ".vdb")) return VolumeFormat::Vdb;
   return VolumeFormat::Raw;
+}
+
+std::uint64_t volumeFileBytes(const std::string& path) {
+  std::error_code ec;
+  std::uint64_t bytes = std::filesystem::file_size(path, ec);
+  if (ec) return 0;
+  if (volumeFormatOf(path) != VolumeFormat::Nrrd) return bytes;
+  try {
+    const NrrdHeader h = readNrrdHeader(path);
+    if (!h.attached) {
+      const std::uint64_t data = std::filesystem::file_size(nrrdDataPath(path, h), ec);
+      if (!ec) bytes += data;
+    }
+  } catch (const Error&) {
+  }
+  return bytes;
 }
 
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options) {

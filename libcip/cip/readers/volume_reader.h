@@ -33,6 +33,11 @@ struct VolumeReadOptions {
 /// without options.raw is an error that says which parameters are missing.
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options = {});
 
+/// Bytes on disk of the volume file `path`: the file, plus for an NRRD header with detached data the data
+/// file it names (a header that cannot be read, or a missing data file, counts as nothing more); 0 when
+/// `path` is no file.
+std::uint64_t volumeFileBytes(const std::string& path);
+
 /// Short description for statistics, e.g. "tooth.nhdr (NRRD uint8 103x94x161), spacing 1 1 1" or, for VDB,
 /// "sphere.vdb grid ls_sphere (VDB float level set, ...), grid 127x127x127, spacing 0.05 0.05 0.05, 125
 /// bricks".

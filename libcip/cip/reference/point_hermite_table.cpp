@@ -43,8 +43,7 @@ PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<st
     total += static_cast<std::uint64_t>(__builtin_popcountll(present_[w]));
   }
   if (total > 0xFFFFFFFFu) throw Error("too many grid points for one reference table");
-  reserveHuge(data_, static_cast<std::size_t>(total));
-  data_.resize(static_cast<std::size_t>(total));
+  resizeHuge(data_, static_cast<std::size_t>(total));
 
   // The points of one tile: their box-local positions over the tile's bounding box of points.
   std::array<std::int64_t, 3> tiles;

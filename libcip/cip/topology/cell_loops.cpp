@@ -109,7 +109,7 @@ CellLoops traceCellLoops(std::uint8_t config, std::uint8_t pairing03Mask) {
 }
 
 /// Every cell's loops, traced once per process: per configuration one entry per pairing of its ambiguous
-/// faces (the other faces' bits do not matter). The builders ask for them for every cell, twice.
+/// faces (the other faces' bits do not matter). The builder asks for them for every cell.
 class LoopTable {
  public:
   LoopTable() {
@@ -120,7 +120,7 @@ class LoopTable {
         if (cube::isAmbiguousFace(config, f)) ambiguous = static_cast<std::uint8_t>(ambiguous | (1u << f));
       ambiguous_[c] = ambiguous;
       first_[c] = static_cast<std::uint32_t>(loops_.size());
-      // Every subset of the ambiguous faces, in the order of their compressed bits (index()).
+      // Every subset of the ambiguous faces, in the order of their compressed bits (at()).
       const int n = __builtin_popcount(ambiguous);
       for (int k = 0; k < (1 << n); ++k) {
         std::uint8_t pairing = 0;

@@ -1,7 +1,6 @@
 #include "cip/volume/analytic_field.h"
 
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
 #include <cmath>
 
@@ -170,7 +169,7 @@ double marschnerLobbRippleFrequency(const Vec3& p) {
   return MarschnerLobb::fM * kPi / 2 * std::abs(std::sin(kPi * planeLength(p.x(), p.y()) / 2));
 }
 
-DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description, int threads) {
+DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description) {
   if (resolution < 1 || resolution > 4096)
     throw Error("resolution must be between 1 and 4096 cells per axis");
   DenseGrid g;
@@ -187,12 +186,9 @@ DenseGrid sampleField(const ScalarField& field, int resolution, const std::strin
       coordinate[a][static_cast<std::size_t>(i)] = g.geometry.origin[a] + g.geometry.spacing[a] * double(i);
   }
   const int m = static_cast<int>(n);
-  tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
-  arena.execute([&] {
-    tbb::parallel_for(std::int64_t(0), n, [&](std::int64_t k) {
-      field.valuesOnLattice(coordinate[0].data(), coordinate[1].data(), coordinate[2].data() + k, {m, m, 1},
-                            {1, m, 0}, &g.at(0, 0, k));
-    });
+  tbb::parallel_for(std::int64_t(0), n, [&](std::int64_t k) {
+    field.valuesOnLattice(coordinate[0].data(), coordinate[1].data(), coordinate[2].data() + k, {m, m, 1},
+                          {1, m, 0}, &g.at(0, 0, k));
   });
   return g;
 }

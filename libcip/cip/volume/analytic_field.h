@@ -35,9 +35,8 @@ std::unique_ptr<AnalyticField> makeAnalyticField(const std::string& name);
 /// carries it only below its Nyquist limit 1 / (2 h).
 double marschnerLobbRippleFrequency(const Vec3& p);
 /// Samples a field at (N+1)^3 points over [-1,1]^3, a lattice per slice (ScalarField::valuesOnLattice, so a
-/// separable field computes its costly parts per line), on `threads` workers (0 = all); throws cip::Error for
-/// N < 1 or absurd sizes.
-DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description,
-                      int threads = 0);
+/// separable field computes its costly parts per line), in parallel; throws cip::Error for N < 1 or absurd
+/// sizes.
+DenseGrid sampleField(const ScalarField& field, int resolution, const std::string& description);
 
 }  // namespace cip

@@ -46,8 +46,7 @@ void DenseGrid::allocate(const std::array<std::int64_t, 3>& dims, std::size_t ma
   std::int64_t n = checkedVolumeSize(dims, sizeof(double), maxBytes);
   geometry.dims = dims;
   values.clear();
-  reserveHuge(values, static_cast<std::size_t>(n));
-  values.assign(static_cast<std::size_t>(n), 0.0);
+  resizeHuge(values, static_cast<std::size_t>(n));  // zeros
 }
 
 std::pair<double, double> DenseGrid::range() const {
