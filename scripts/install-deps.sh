@@ -5,7 +5,7 @@ set -euo pipefail
 packages=(cmake ninja-build g++ pkg-config
   libeigen3-dev libtbb-dev zlib1g-dev libcli11-dev nlohmann-json3-dev
   libopenvdb-dev libboost-iostreams-dev libembree-dev libopenimageio-dev
-  libgtest-dev libgmock-dev libbenchmark-dev libtinygltf-dev
+  libgtest-dev libgmock-dev libbenchmark-dev libtinygltf-dev libzstd-dev libmeshoptimizer-dev draco
   pybind11-dev python3-pybind11 python3-numpy python3-pytest python3-skimage python3-meshio python3-openimageio "$@")
 missing=()
 for p in "${packages[@]}"; do
