@@ -93,7 +93,10 @@ std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
 
 }  // namespace
 
-std::vector<std::uint8_t> serializeModel(const Model& m) {
+std::vector<std::uint8_t> serializeModel(const Model& m, const ModelFileOptions& options) {
+  if (options.version == 2) return serializeModelV2(m, options.v2);
+  if (options.version != 1)
+    throw Error("model file version " + std::to_string(options.version) + " cannot be written");
   const std::string source = m.source.substr(0, kMaxSourceBytes);
   // Magic, version, dims, origin, spacing, isovalue and four single bytes (96), the source's length and
   // bytes, the three counts, the tables (a cell: index, three bytes, four loop sizes, central, a side
@@ -104,7 +107,7 @@ std::vector<std::uint8_t> serializeModel(const Model& m) {
     size += 12 + 3 + 4 + 8 + 8 * static_cast<std::size_t>(__builtin_popcount(cube::crossedFaces(c.config)));
   Writer w(size);
   for (char c : kMagic) w.put(c);
-  w.put<std::uint32_t>(kModelFileVersion);
+  w.put<std::uint32_t>(1);
   for (auto d : m.geometry.dims) w.put<std::int64_t>(d);
   for (int a = 0; a < 3; ++a) w.put<double>(m.geometry.origin[a]);
   for (int a = 0; a < 3; ++a) w.put<double>(m.geometry.spacing[a]);
@@ -157,9 +160,9 @@ void readPreamble(Reader& r, const std::uint8_t* data, const std::string& name) 
     throw Error(name + ": not a cip model file (bad magic number)");
   r.skip(sizeof(kMagic));
   auto version = r.get<std::uint32_t>("version");
-  if (version != kModelFileVersion) {
+  if (version != 1 && version != 2) {
     throw Error(name + ": model file version " + std::to_string(version) +
-                " is not supported (this build reads " + std::to_string(kModelFileVersion) + ")");
+                " is not supported (this build reads 1 and 2)");
   }
 }
 
@@ -307,6 +310,9 @@ void checkChecksum(Reader& r, const std::uint8_t* data) {
 Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& name) {
   Reader r(data, size, name);
   readPreamble(r, data, name);
+  std::uint32_t version;
+  std::memcpy(&version, data + sizeof(kMagic), 4);
+  if (version == 2) return parseModelV2(data, size, name);
   Model m;
   readHeaderFields(r, m);
   const TableCounts counts = readTableCounts(r);
@@ -316,8 +322,16 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   return m;
 }
 
-std::size_t writeModel(const Model& model, const std::string& path) {
-  std::vector<std::uint8_t> bytes = serializeModel(model);
+Model storedModel(const Model& model, const ModelFileOptions& options) {
+  const std::vector<std::uint8_t> bytes = serializeModel(model, options);
+  return parseModel(bytes.data(), bytes.size());
+}
+
+std::size_t writeModel(const Model& model, const std::string& path, const ModelFileOptions& options) {
+  return writeModelBytes(serializeModel(model, options), path);
+}
+
+std::size_t writeModelBytes(const std::vector<std::uint8_t>& bytes, const std::string& path) {
   return writeFileAtomically(path, [&](std::FILE* f) { writeBytes(f, bytes.data(), bytes.size()); });
 }
 

@@ -6,19 +6,35 @@
 #include <vector>
 
 #include "cip/model/model.h"
+#include "cip/model/model_file_v2.h"
 
 namespace cip {
 
-constexpr std::uint32_t kModelFileVersion = 1;
+/// The version serializeModel writes: 2, compact and lossy within stated bounds (model_file_v2.h). Version 1
+/// (every number in full precision) is still read, and written on request.
+constexpr std::uint32_t kModelFileVersion = 2;
+
+/// How to write a model file.
+struct ModelFileOptions {
+  std::uint32_t version = kModelFileVersion;  ///< 1 or 2
+  ModelFileV2Options v2;                      ///< quantisation and chunking of version 2
+};
 
 /// Serialises a model to bytes (the exact file contents).
-std::vector<std::uint8_t> serializeModel(const Model& model);
-/// Parses and validates file contents; throws cip::Error naming the first problem ("truncated", "vertex index
-/// out of range", "checksum mismatch", ...). Never allocates more than the input can back.
+std::vector<std::uint8_t> serializeModel(const Model& model, const ModelFileOptions& options = {});
+/// Parses and validates file contents (version 1 or 2); throws cip::Error naming the first problem
+/// ("truncated", "vertex index out of range", "chunk 3 (brick 1,0,2 ...): checksum mismatch", ...). Never
+/// allocates more than the input can back.
 Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& name = "model");
+/// The model as a file of these options stores it: parseModel(serializeModel(model, options)). Everything
+/// computed after writing a model (meshes, renders, fidelity figures) should use this, not the model as
+/// built.
+Model storedModel(const Model& model, const ModelFileOptions& options = {});
 
 /// Writes atomically (temporary file + rename). Returns the number of bytes written.
-std::size_t writeModel(const Model& model, const std::string& path);
+std::size_t writeModel(const Model& model, const std::string& path, const ModelFileOptions& options = {});
+/// Writes bytes serializeModel returned, atomically.
+std::size_t writeModelBytes(const std::vector<std::uint8_t>& bytes, const std::string& path);
 /// Reads and validates a model file; throws cip::Error with the path in the message.
 Model readModel(const std::string& path);
 

@@ -1,0 +1,33 @@
+/// @file model_file_v2.h
+/// @brief Version 2 of the `.cip` file (docs/model-format.md): a sign map of the crossed region per brick,
+/// one quantised crossing parameter and one predicted, quantised normal per crossed edge, one side
+/// coefficient per crossed face, all entropy-coded with zstd in chunks that are checked and decoded one
+/// brick at a time. Lossy within stated bounds: the surface a v2 file stores is the surface every tool
+/// downstream uses (extract decodes what it writes before it measures anything).
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "cip/model/model.h"
+
+namespace cip {
+
+/// Quantisation and chunking of a version 2 file. The defaults keep the stored surface within 0.01 voxel of
+/// the full-precision one (docs/model-format.md says how that is measured).
+struct ModelFileV2Options {
+  int brick = 64;              ///< cells per brick edge (8..250): the unit of chunking
+  int positionBits = 9;        ///< crossing parameter along its edge: t = q / (2^bits - 1), 4..16
+  int normalBits = 10;         ///< octahedral step of the normal residual: 2^-bits, 6..16
+  double sideStep = 0.002;     ///< side coefficients: absolute step near zero ...
+  int sideMantissa = 6;        ///< ... and this many bits of relative precision above 2^bits steps
+  double centralStep = 0.004;  ///< central coefficients, likewise
+  int centralMantissa = 5;
+  int zstdLevel = 9;  ///< 1..19
+};
+
+std::vector<std::uint8_t> serializeModelV2(const Model& model, const ModelFileV2Options& options = {});
+/// Parses a version 2 file whose magic and version the caller has checked (`data` is the whole file).
+Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string& name);
+
+}  // namespace cip
