@@ -83,7 +83,7 @@ struct Totals {
   std::int64_t compared = 0, onlyInReference = 0, rays = 0, bothHit = 0, referenceOnly = 0, storedOnly = 0,
                firstOrder = 0;
   Tally depth, rayNormal, distance, normal, oneSided;
-  double worstDistance = -1;
+  double worstDistance = 0;   ///< cells that did not move are never the worst
   std::size_t worstCell = 0;  ///< reference cell index
 
   void merge(const Totals& o) {
@@ -335,7 +335,7 @@ ModelDisplacement measureModelDisplacement(const Model& reference, const Model& 
       reference.geometry.origin == stored.geometry.origin && spacing == stored.geometry.spacing;
   for (const ModelCell& cell : stored.cells)
     if (reference.findCell(cell.index[0], cell.index[1], cell.index[2]) < 0) ++out.cellsOnlyInStored;
-  if (totals.worstDistance >= 0) out.worstCell = reference.cells[totals.worstCell].index;
+  if (totals.worstDistance > 0) out.worstCell = reference.cells[totals.worstCell].index;
   out.cellDistance = std::move(cellDistance);
   return out;
 }

@@ -42,21 +42,22 @@ struct DisplacementOptions {
 };
 
 struct ModelDisplacement {
-  bool sameGeometry = true;                  ///< origins and spacings equal (dims must be)
-  std::int64_t cellsCompared = 0;            ///< cells present in both models
-  std::int64_t cellsOnlyInReference = 0;     ///< non-empty in the reference, empty in the stored model
-  std::int64_t cellsOnlyInStored = 0;        ///< the other way round
-  std::int64_t rays = 0;                     ///< rays through compared cells' boxes
-  std::int64_t bothHit = 0;                  ///< rays that hit both surfaces
-  std::int64_t referenceOnlyHits = 0;        ///< rays that hit the reference surface only
-  std::int64_t storedOnlyHits = 0;           ///< rays that hit the stored surface only
-  std::int64_t firstOrderEstimates = 0;      ///< distances from |I| / |grad I| (Newton did not converge)
-  ErrorSummary depthVoxels;                  ///< |t_reference - t_stored| on rays that hit both
-  ErrorSummary rayNormalDegrees;             ///< angle between the normals at the two hits of such a ray
-  ErrorSummary distanceVoxels;               ///< every hit to the other zero set, both directions
-  ErrorSummary normalDegrees;                ///< every hit's normal against the other surface's, both ways
-  ErrorSummary oneSidedDistanceVoxels;       ///< the distances of hits whose ray missed the other surface
-  std::array<std::uint32_t, 3> worstCell{};  ///< grid index of the cell with the largest distance
+  bool sameGeometry = true;               ///< origins and spacings equal (dims must be)
+  std::int64_t cellsCompared = 0;         ///< cells present in both models
+  std::int64_t cellsOnlyInReference = 0;  ///< non-empty in the reference, empty in the stored model
+  std::int64_t cellsOnlyInStored = 0;     ///< the other way round
+  std::int64_t rays = 0;                  ///< rays through compared cells' boxes
+  std::int64_t bothHit = 0;               ///< rays that hit both surfaces
+  std::int64_t referenceOnlyHits = 0;     ///< rays that hit the reference surface only
+  std::int64_t storedOnlyHits = 0;        ///< rays that hit the stored surface only
+  std::int64_t firstOrderEstimates = 0;   ///< distances from |I| / |grad I| (Newton did not converge)
+  ErrorSummary depthVoxels;               ///< |t_reference - t_stored| on rays that hit both
+  ErrorSummary rayNormalDegrees;          ///< angle between the normals at the two hits of such a ray
+  ErrorSummary distanceVoxels;            ///< every hit to the other zero set, both directions
+  ErrorSummary normalDegrees;             ///< every hit's normal against the other surface's, both ways
+  ErrorSummary oneSidedDistanceVoxels;    ///< the distances of hits whose ray missed the other surface
+  std::array<std::uint32_t, 3>
+      worstCell{};  ///< grid index of the cell with the largest distance (0s if none moved)
   /// With DisplacementOptions::perCell: the largest distance in each reference cell (Model::cells order);
   /// 0 for cells without hits, NaN for cells the stored model does not have.
   std::vector<double> cellDistance;
