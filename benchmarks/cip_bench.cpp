@@ -5,6 +5,8 @@
 //   cip_bench method     [--quick] [--shared-data ../shared/data] [--table NAME]... [--single-build]
 //                        [--rows REGEX]...
 //                        (the tables of docs/method.md)
+//   cip_bench displacement --model FULL.cip --stored STORED.cip [--json out.json] [--rays-per-axis K]
+//                        (how far the stored model's surface lies from the full one's: model_displacement.h)
 #include <malloc.h>
 #include <tbb/info.h>
 
@@ -16,9 +18,11 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <nlohmann/json.hpp>
 #include <regex>
 
 #include "cip/measure/continuity_check.h"
+#include "cip/measure/model_displacement.h"
 #include "cip/measure/surface_fidelity.h"
 #include "cip/mesh/marching_cubes.h"
 #include "cip/mesh/ply.h"
@@ -269,6 +273,60 @@ void fidelity(const std::string& csvPath, bool quick) {
   }
 }
 
+nlohmann::json summaryJson(const cip::ErrorSummary& s) {
+  // Non-finite figures (a hole with a vanishing gradient) are written as null: JSON has no infinity.
+  auto number = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); };
+  return {{"count", s.count}, {"mean", number(s.mean)}, {"p99", number(s.p99)}, {"max", number(s.max)}};
+}
+
+/// Measures a stored model against the full-precision one it was made from (a codec's quantisation: the
+/// figures the storage requirement bounds, max distance 0.01 voxel), printed and written as JSON.
+void displacement(const std::string& fullPath, const std::string& storedPath, const std::string& jsonPath,
+                  int raysPerAxis) {
+  const cip::Model full = cip::readModel(fullPath);
+  const cip::Model stored = cip::readModel(storedPath);
+  cip::DisplacementOptions o;
+  o.raysPerAxis = raysPerAxis;
+  const auto t0 = Clock::now();
+  const cip::ModelDisplacement d = cip::measureModelDisplacement(full, stored, o);
+  const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  std::fprintf(stderr,
+               "%s vs %s: %lld cells, %lld rays in %.2f s; distance max %.3g mean %.3g p99 %.3g voxel, "
+               "normal max %.3g mean %.3g deg, depth max %.3g voxel, %lld one-sided hits (max %.3g voxel), "
+               "worst cell %u %u %u\n",
+               storedPath.c_str(), fullPath.c_str(), static_cast<long long>(d.cellsCompared),
+               static_cast<long long>(d.rays), seconds, d.distanceVoxels.max, d.distanceVoxels.mean,
+               d.distanceVoxels.p99, d.normalDegrees.max, d.normalDegrees.mean, d.depthVoxels.max,
+               static_cast<long long>(d.oneSidedHits()), d.oneSidedDistanceVoxels.max, d.worstCell[0],
+               d.worstCell[1], d.worstCell[2]);
+  if (d.cellsOnlyInReference + d.cellsOnlyInStored > 0)
+    std::fprintf(stderr, "cells only in the full model: %lld, only in the stored one: %lld\n",
+                 static_cast<long long>(d.cellsOnlyInReference), static_cast<long long>(d.cellsOnlyInStored));
+  if (jsonPath.empty()) return;
+  nlohmann::json j;
+  j["model"] = fullPath;
+  j["stored"] = storedPath;
+  j["rays_per_axis"] = raysPerAxis;
+  j["seconds"] = seconds;
+  j["same_geometry"] = d.sameGeometry;
+  j["cells"] = {{"compared", d.cellsCompared},
+                {"only_in_model", d.cellsOnlyInReference},
+                {"only_in_stored", d.cellsOnlyInStored}};
+  j["rays"] = {{"cast", d.rays},
+               {"both_hit", d.bothHit},
+               {"model_only_hits", d.referenceOnlyHits},
+               {"stored_only_hits", d.storedOnlyHits},
+               {"first_order_estimates", d.firstOrderEstimates}};
+  j["distance_voxels"] = summaryJson(d.distanceVoxels);
+  j["normal_degrees"] = summaryJson(d.normalDegrees);
+  j["depth_voxels"] = summaryJson(d.depthVoxels);
+  j["ray_normal_degrees"] = summaryJson(d.rayNormalDegrees);
+  j["one_sided_distance_voxels"] = summaryJson(d.oneSidedDistanceVoxels);
+  j["worst_cell"] = d.worstCell;
+  std::ofstream out(jsonPath);
+  if (!(out << j.dump(2) << "\n")) throw std::runtime_error("cannot write " + jsonPath);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -298,11 +356,22 @@ int main(int argc, char** argv) {
   me->add_option("--rows", method.rows,
                  "only the cases whose name matches this regular expression (repeatable: all of them), "
                  "e.g. --rows '32|nucleon'");
+  auto* di = app.add_subcommand(
+      "displacement", "how far a stored model's surface lies from the full-precision model's (codec tuning)");
+  std::string fullModel, storedModel, json;
+  int raysPerAxis = cip::DisplacementOptions().raysPerAxis;
+  di->add_option("--model", fullModel, "the full-precision model (.cip)")->required();
+  di->add_option("--stored", storedModel, "the same model as stored (.cip)")->required();
+  di->add_option("--json", json, "write the figures as JSON");
+  di->add_option("--rays-per-axis", raysPerAxis,
+                 "k: k x k rays per direction and cell, 7 directions (default 4)")
+      ->check(CLI::Range(1, 64));
   CLI11_PARSE(app, argc, argv);
   try {
     if (*ex) extraction(csv, quick, shared, cases);
     if (*fi) fidelity(csv, quick);
     if (*me) cipbench::methodTables(method);
+    if (*di) displacement(fullModel, storedModel, json, raysPerAxis);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "cip_bench: error: %s\n", e.what());
     return 1;

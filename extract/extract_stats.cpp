@@ -40,6 +40,14 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
       }
     }
   }
+  if (s.storage) {
+    // A non-finite figure (a hole with a vanishing gradient) is written as null: JSON has no infinity.
+    auto number = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); };
+    j["storage"] = {{"max_distance_voxels", number(s.storage->distanceVoxels.max)},
+                    {"mean_distance_voxels", number(s.storage->distanceVoxels.mean)},
+                    {"max_normal_degrees", number(s.storage->normalDegrees.max)},
+                    {"one_sided_hits", s.storage->oneSidedHits()}};
+  }
   j["seconds"] = s.seconds;
   j["bytes_written"] = s.bytesWritten;
   std::string text = j.dump(2) + "\n";

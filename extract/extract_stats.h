@@ -4,6 +4,7 @@
 #include <optional>
 #include <string>
 
+#include "cip/measure/model_displacement.h"
 #include "cip/model/model.h"
 #include "cip/model/patch_fitting.h"
 
@@ -17,6 +18,7 @@ struct ExtractStats {
   std::map<std::string, double> seconds;            ///< per stage
   std::map<std::string, std::size_t> bytesWritten;  ///< per output file
   std::optional<FittingStats> fitting;              ///< the fitted construction's fallback (method fitted)
+  std::optional<ModelDisplacement> storage;         ///< --check-storage: the model as stored against as built
 };
 
 /// Writes the stats and the model's counts (non-empty cells, isovertices, corners, loops-per-cell histogram)
@@ -24,7 +26,8 @@ struct ExtractStats {
 /// blended isovertices and the cells left without a sign-correct coefficient, and, when the model followed a
 /// reference of the samples (Model::reconstruction: not with exact normals), the reconstruction of it and,
 /// when auto chose it, "sampling": the effective wavelength (null when infinite), the sixth-to-fourth
-/// difference ratio and the cells measured (reconstruction_choice.h).
+/// difference ratio and the cells measured (reconstruction_choice.h). With --check-storage, "storage": how
+/// far the stored model's surface lies from the built one's (model_displacement.h).
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

@@ -1,6 +1,7 @@
 // The extract command's run statistics (--stats-json), its report of the fitted construction's fallback, its
 // choice of reference reconstruction, the meshes it writes (--mc-mesh, --patch-mesh, --subdiv), its
-// independence of --threads and its choice of an OpenVDB grid (--grid). Each test in a folder of its own.
+// independence of --threads, its choice of an OpenVDB grid (--grid) and its storage check (--check-storage).
+// Each test in a folder of its own.
 #include <gtest/gtest.h>
 
 #include <string>
@@ -262,4 +263,30 @@ TEST(ExtractCli, GridSelectsTheVdbGrid) {
     EXPECT_NE(r.err.find("'" + g.name + "' (" + g.valueType + ")"), std::string::npos) << r.err;
   EXPECT_EQ(r.err.find('\n'), r.err.size() - 1) << "one line: " << r.err;
   EXPECT_FALSE(std::filesystem::exists(missing));
+}
+
+// --check-storage measures the written model against the built one (0 while the file is lossless) and reports
+// it on standard error and under "storage" in the stats file, keys added beside the others; without the flag
+// neither appears, and --quiet keeps the line off standard error.
+TEST(ExtractCli, CheckStorageReportsHowFarTheStoredSurfaceMoves) {
+  test::ScratchDir dir;
+  const std::string json = dir.file("stats.json");
+  const std::string common =
+      kExtract + " sphere --resolution 16 -o " + dir.file("s.cip") + " --stats-json " + json;
+  test::CommandResult r = test::run(common + " --check-storage");
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::string text = test::slurp(json);
+  for (const char* key : {"\"storage\": {", "\"max_distance_voxels\": 0.0", "\"mean_distance_voxels\": 0.0",
+                          "\"max_normal_degrees\": 0.0", "\"one_sided_hits\": 0",
+                          "\"check_storage\": ", "\"non_empty_cells\": "})
+    EXPECT_NE(text.find(key), std::string::npos) << key << "\n" << text;
+  EXPECT_NE(r.err.find("storage: the stored surface moves by at most 0 voxel"), std::string::npos) << r.err;
+  r = test::run(common + " --check-storage --quiet");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.err.find("storage:"), std::string::npos) << r.err;
+  r = test::run(common);
+  ASSERT_EQ(r.status, 0) << r.err;
+  text = test::slurp(json);
+  EXPECT_EQ(text.find("\"storage\""), std::string::npos) << text;
+  EXPECT_EQ(r.err.find("storage:"), std::string::npos) << r.err;
 }
