@@ -5,10 +5,10 @@
 //   cip_bench method     [--quick] [--shared-data ../shared/data] [--table NAME]... [--single-build]
 //                        [--rows REGEX]...
 //                        (the tables of docs/method.md)
-//   cip_bench mesh-codecs --ply MC.ply [--json OUT] [--reps N]
+//   cip_bench mesh-codecs --ply MC.ply [--json OUT] [--reps N] [--min-seconds S]
 //                        (the marching-cubes mesh through meshoptimizer and zstd: bytes, encode and decode
 //                        times)
-//   cip_bench model-io   --model M.cip --ply MC.ply [--json OUT] [--reps N]
+//   cip_bench model-io   --model M.cip --ply MC.ply [--json OUT] [--reps N] [--min-seconds S]
 //                        (model read/parse/serialize/write and PLY read/parse/write, 1 thread and all, MB/s
 //                        of PLY)
 #include <malloc.h>
@@ -313,6 +313,8 @@ int main(int argc, char** argv) {
   mc->add_option("--json", codecs.json, "also write the JSON to this file");
   mc->add_option("--reps", codecs.reps, "timed runs of each encode and decode (the best counts)")
       ->check(CLI::PositiveNumber);
+  mc->add_option("--min-seconds", codecs.minSeconds,
+                 "more runs while one operation's runs took less than this altogether");
   mc->add_option("--zstd-level", codecs.zstdLevel, "zstd level on top of meshoptimizer")
       ->check(CLI::Range(1, 22));
   auto* io =
@@ -325,6 +327,8 @@ int main(int argc, char** argv) {
   io->add_option("--json", modelIo.json, "also write the JSON to this file");
   io->add_option("--reps", modelIo.reps, "timed runs of each operation (the best counts)")
       ->check(CLI::PositiveNumber);
+  io->add_option("--min-seconds", modelIo.minSeconds,
+                 "more runs while one operation's runs took less than this altogether");
   CLI11_PARSE(app, argc, argv);
   try {
     if (*ex) extraction(csv, quick, shared, cases);
