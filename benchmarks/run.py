@@ -565,8 +565,10 @@ def main():
     write_csv(os.path.join(out, "extraction-ratios.csv"), ratio_rows, list(ratio_rows[0].keys()))
     plots = plot(fidelity, extraction, render_rows, out)
 
+    t_size = time.perf_counter()
     cases = size_cases(extraction, args.quick, args.shared_data)
     size_rows, io_rows, size_notes, size_meta = size_section(args.build_dir, out, cases, args.quick)
+    print("size and model I/O sections: %.1f s" % (time.perf_counter() - t_size), file=sys.stderr)
     write_csv(os.path.join(out, "size.csv"), size_rows, list(size_rows[0].keys()))
     write_csv(os.path.join(out, "model-io.csv"), io_rows, list(io_rows[0].keys()))
 
