@@ -648,7 +648,11 @@ def main():
           "PLY reader and writer (mesh/ply.h) on the mesh, the same way. meshopt_decode_mb_s, draco_decode_mb_s: "
           "the meshoptimizer and Draco decodes of the size table (the same figure on both rows: neither is "
           "parallel). model_read_over_ply_read_speed: PLY read time / model read time (above 1: the model loads "
-          "faster).", "",
+          "faster). Before each timed run the heap's free memory goes back to the system, as in a fresh process, "
+          "so every run pays for its allocations' page faults; cip_bench runs with the huge-page heap of the whole "
+          "run (see Extraction), and without it these figures are several times lower on machines where page "
+          "faults are dear (virtual machines). model_write includes an fsync, whose cost depends on the disk "
+          "more than on the model; model_serialize is the codec's own figure.", "",
           "Targets (issue 32): model read and write at least %.0f MB/s of equivalent PLY on one core, and a model "
           "loads faster than its mesh's PLY. %s" % (IO_TARGET_MB_S, io_verdict(io_rows)), "",
           table(io_rows, ["case", "iso", "method", "threads", "ply_bytes", "model_bytes", "model_read_mb_s",
