@@ -626,7 +626,8 @@ def main():
               size_meta["meshopt"], size_meta["header"]),
           "- model_over_X: model_bytes / X's bytes (below 1: the model is smaller); model_over_mc divides by "
           "mc_ply_bytes. size.csv also holds the Draco and meshoptimizer encode and decode times and the largest "
-          "normal error of the meshoptimizer decode.", ""] + ["- " + n for n in size_notes] + ([""] if size_notes else []) + [
+          "normal error of the meshoptimizer decode.", ""] + ["- " + n for n in size_notes] + (
+              [""] if size_notes else []) + [
           table(size_rows, ["case", "iso", "method", "patch_cells", "mc_triangles", "input_bytes", "model_bytes",
                             "mc_ply_bytes", "ply_gz_bytes", "draco_bytes", "meshopt_bytes", "meshopt_oct10_bytes",
                             "meshopt_zstd_bytes"], {"iso": "%g"}), "",
