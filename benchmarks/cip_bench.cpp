@@ -7,6 +7,12 @@
 //                        (the tables of docs/method.md)
 //   cip_bench displacement --model FULL.cip --stored STORED.cip [--json out.json] [--rays-per-axis K]
 //                        (how far the stored model's surface lies from the full one's: model_displacement.h)
+//   cip_bench mesh-codecs --ply MC.ply [--json OUT] [--reps N] [--min-seconds S]
+//                        (the marching-cubes mesh through meshoptimizer and zstd: bytes, encode and decode
+//                        times)
+//   cip_bench model-io   --model M.cip --ply MC.ply [--json OUT] [--reps N] [--min-seconds S]
+//                        (model read/parse/serialize/write and PLY read/parse/write, 1 thread and all, MB/s
+//                        of PLY)
 #include <malloc.h>
 #include <tbb/info.h>
 
@@ -32,6 +38,7 @@
 #include "cip/volume/analytic_field.h"
 #include "method_tables.h"
 #include "openvdb_peer.h"
+#include "size_peers.h"
 
 namespace {
 
@@ -366,12 +373,38 @@ int main(int argc, char** argv) {
   di->add_option("--rays-per-axis", raysPerAxis,
                  "k: k x k rays per direction and cell, 7 directions (default 4)")
       ->check(CLI::Range(1, 64));
+  auto* mc = app.add_subcommand(
+      "mesh-codecs",
+      "the marching-cubes mesh encoded with meshoptimizer (and zstd on top): bytes and times (JSON)");
+  cipbench::MeshCodecOptions codecs;
+  mc->add_option("--ply", codecs.ply, "the mesh, e.g. as written by extract --mc-mesh mc.ply")->required();
+  mc->add_option("--json", codecs.json, "also write the JSON to this file");
+  mc->add_option("--reps", codecs.reps, "timed runs of each encode and decode (the best counts)")
+      ->check(CLI::PositiveNumber);
+  mc->add_option("--min-seconds", codecs.minSeconds,
+                 "more runs while one operation's runs took less than this altogether");
+  mc->add_option("--zstd-level", codecs.zstdLevel, "zstd level on top of meshoptimizer")
+      ->check(CLI::Range(1, 22));
+  auto* io =
+      app.add_subcommand("model-io",
+                         "model read/parse/serialize/write against PLY read/parse/write of the mesh of the "
+                         "same model, 1 thread and all, in MB/s of the PLY (JSON)");
+  cipbench::ModelIoOptions modelIo;
+  io->add_option("--model", modelIo.model, "the .cip file")->required();
+  io->add_option("--ply", modelIo.ply, "its marching-cubes mesh (extract --mc-mesh)")->required();
+  io->add_option("--json", modelIo.json, "also write the JSON to this file");
+  io->add_option("--reps", modelIo.reps, "timed runs of each operation (the best counts)")
+      ->check(CLI::PositiveNumber);
+  io->add_option("--min-seconds", modelIo.minSeconds,
+                 "more runs while one operation's runs took less than this altogether");
   CLI11_PARSE(app, argc, argv);
   try {
     if (*ex) extraction(csv, quick, shared, cases);
     if (*fi) fidelity(csv, quick);
     if (*me) cipbench::methodTables(method);
     if (*di) displacement(fullModel, storedModel, json, raysPerAxis);
+    if (*mc) cipbench::meshCodecs(codecs);
+    if (*io) cipbench::modelIo(modelIo);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "cip_bench: error: %s\n", e.what());
     return 1;

@@ -212,6 +212,171 @@ def render_section(build, out, quick, shared):
 
 
 # ---------------------------------------------------------------------------------------------------------------
+# Size against mesh compressors, model read/write throughput
+
+REAL_ISO = {"nucleon.nhdr": 128.0, "tooth.nhdr": 120.0, "headsq.nhdr": 500.0}  # cip_bench extraction's isovalues
+DRACO = ["-qp", "14", "-qn", "10", "-cl", "7"]  # draco_encoder settings of the size table
+
+
+def input_bytes(path):
+    """The input's bytes on disk as cip's volumeFileBytes counts them: an NRRD detached header with its data file."""
+    n = os.path.getsize(path)
+    if path.endswith(".nhdr"):
+        for line in open(path, errors="replace"):
+            if line.lower().startswith(("data file:", "datafile:")):
+                n += os.path.getsize(os.path.join(os.path.dirname(path), line.split(":", 1)[1].strip()))
+    return n
+
+
+def size_cases(extraction, quick, shared):
+    """(case, iso, method, extract arguments, input bytes): the extraction cases (fitted, as the size table always
+    had them), then the real volumes with their suggested isovalues (../shared/data/README.md), some with the
+    paper construction too."""
+    out = []
+    for r in extraction:
+        if r["method"] != "cip-patches-fitted" or int(r["threads"]) != 1:
+            continue
+        field, _, n = r["case"].rpartition("-")
+        if field in ("sphere", "torus", "gyroid") and n.isdigit():
+            out.append((r["case"], 0.0, "fitted", [field, "--resolution", n], int(r["input_bytes"])))
+        elif r["case"] == "mri-colin27":
+            out.append((r["case"], MRI_ISO, "fitted", [MRI, "--iso", str(MRI_ISO)], int(r["input_bytes"])))
+        elif r["case"] in REAL_ISO:
+            iso = REAL_ISO[r["case"]]
+            out.append((r["case"], iso, "fitted", [os.path.join(shared, r["case"]), "--iso", "%g" % iso],
+                        int(r["input_bytes"])))
+    if quick:
+        extra = [("headsq.nhdr", 500.0, ("fitted", "paper")), ("tooth.nhdr", 120.0, ("fitted",))]
+    else:
+        extra = [("headsq.nhdr", 500.0, ("fitted", "paper")), ("headsq.nhdr", 1150.0, ("fitted", "paper")),
+                 ("tooth.nhdr", 120.0, ("fitted", "paper")), ("tooth.nhdr", 200.0, ("fitted",)),
+                 ("vdb/smoke.vdb", 0.1, ("fitted", "paper"))]
+    for name, iso, methods in extra:
+        path = os.path.join(shared, name)
+        if not os.path.exists(path):
+            continue
+        for m in methods:
+            case = os.path.basename(name)
+            if not any(c[0] == case and c[1] == iso and c[2] == m for c in out):
+                out.append((case, iso, m, [path, "--iso", "%g" % iso], input_bytes(path)))
+    return out
+
+
+def size_section(build, out, cases, quick):
+    """For each case: extract writes the model and the marching-cubes mesh of its cells (binary PLY with normals);
+    the mesh is gzipped, Draco-encoded (draco_encoder) and meshoptimizer-encoded (cip_bench mesh-codecs); cip_bench
+    model-io times the model's and the PLY's reading and writing. Returns (size rows, io rows, notes, versions)."""
+    import gzip
+    extract = os.path.join(build, "extract", "extract")
+    bench = os.path.join(build, "benchmarks", "cip_bench")
+    timing = ["--reps", "2"] if quick else ["--reps", "5", "--min-seconds", "0.5"]
+    draco = shutil.which("draco_encoder")
+    notes = [] if draco else ["draco_encoder is not installed (Debian package draco): the Draco columns are empty."]
+    size_rows, io_rows = [], []
+    meta = {"draco": draco_version(), "meshopt": "", "header": 0, "format": ""}
+    for case, iso, method, args, in_bytes in cases:
+        slug = "size-%s-%g-%s" % (case.replace(".", "_"), iso, method)
+        model, mesh = os.path.join(out, slug + ".cip"), os.path.join(out, slug + "-mc.ply")
+        stats_path = os.path.join(out, slug + "-extract.json")
+        sh([extract] + args + ["--method", method, "-o", model, "--mc-mesh", mesh, "--stats-json", stats_path,
+                               "--quiet"])
+        cells = json.load(open(stats_path))["model"]["non_empty_cells"]
+        model_bytes, ply_bytes = os.path.getsize(model), os.path.getsize(mesh)
+        with open(mesh, "rb") as f:
+            ply_gz = len(gzip.compress(f.read(), 9))
+        codecs_path = os.path.join(out, slug + "-codecs.json")
+        sh([bench, "mesh-codecs", "--ply", mesh, "--json", codecs_path] + timing, stdout=subprocess.DEVNULL)
+        codecs = json.load(open(codecs_path))
+        if not codecs["normals"]:
+            notes.append("%s: the marching-cubes PLY has no normals; Draco and meshoptimizer encoded positions only."
+                         % case)
+        drc_bytes, drc_enc, drc_dec = "", "", ""
+        if draco:
+            drc = os.path.join(out, slug + "-mc.drc")
+            drc_enc = draco_ms(sh([draco, "-i", mesh, "-o", drc] + DRACO, capture_output=True, text=True).stdout,
+                               "encode")
+            drc_bytes = os.path.getsize(drc)
+            decoded = os.path.join(out, slug + "-mc-draco.ply")
+            drc_dec = draco_ms(sh([draco.replace("draco_encoder", "draco_decoder"), "-i", drc, "-o", decoded],
+                                  capture_output=True, text=True).stdout, "decode")
+            os.remove(decoded)
+        io_path = os.path.join(out, slug + "-io.json")
+        sh([bench, "model-io", "--model", model, "--ply", mesh, "--json", io_path] + timing,
+           stdout=subprocess.DEVNULL)
+        io = json.load(open(io_path))
+        mo, mz = codecs["meshopt"], codecs["meshopt_zstd"]
+        v = int(codecs["meshoptimizer_version"])
+        meta.update(meshopt="%d.%d" % (v // 1000, v % 1000 // 10), header=mo["header_bytes"],
+                    format=io["model_file_version"])
+        per = lambda b: b / cells if cells and b != "" else ""
+        over = lambda b: model_bytes / b if b else ""
+        size_rows.append({
+            # the columns the size table always had (first, unchanged)
+            "case": case, "input_bytes": in_bytes, "model_bytes": model_bytes, "mc_ply_bytes": ply_bytes,
+            "model_over_mc": model_bytes / max(1, ply_bytes), "model_over_input": model_bytes / max(1, in_bytes),
+            # mesh compressors on the same cells' marching-cubes mesh
+            "iso": iso, "method": method, "patch_cells": cells, "mc_vertices": codecs["vertices"],
+            "mc_triangles": codecs["triangles"], "model_bytes_per_cell": per(model_bytes),
+            "ply_gz_bytes": ply_gz, "draco_bytes": drc_bytes, "meshopt_bytes": mo["bytes"],
+            "meshopt_zstd_bytes": mz["bytes"], "meshopt_oct10_bytes": codecs["meshopt_oct10"]["bytes"],
+            "ply_bytes_per_cell": per(ply_bytes), "ply_gz_bytes_per_cell": per(ply_gz),
+            "draco_bytes_per_cell": per(drc_bytes), "meshopt_bytes_per_cell": per(mo["bytes"]),
+            "meshopt_zstd_bytes_per_cell": per(mz["bytes"]),
+            "model_over_ply_gz": over(ply_gz), "model_over_draco": over(drc_bytes),
+            "model_over_meshopt": over(mo["bytes"]), "model_over_meshopt_zstd": over(mz["bytes"]),
+            "draco_encode_s": drc_enc, "draco_decode_s": drc_dec, "meshopt_encode_s": mo["encode_seconds"],
+            "meshopt_decode_s": mo["decode_seconds"], "meshopt_zstd_decode_s": mz["decode_seconds"],
+            "meshopt_max_normal_error_deg": mo["check"]["max_normal_error_deg"]})
+        for r in io["rows"]:
+            row = {"case": case, "iso": iso, "method": method, "threads": r["threads"], "ply_bytes": io["ply_bytes"],
+                   "model_bytes": io["model_bytes"]}
+            for k in ("model_read", "model_parse", "model_serialize", "model_write", "ply_read", "ply_parse",
+                      "ply_write"):
+                row[k + "_mb_s"] = r["ply_mb_per_s"][k]
+            row["meshopt_decode_mb_s"] = io["ply_bytes"] / mo["decode_seconds"] * 1e-6
+            row["draco_decode_mb_s"] = io["ply_bytes"] / drc_dec * 1e-6 if drc_dec else ""
+            row["model_read_over_ply_read_speed"] = r["seconds"]["ply_read"] / r["seconds"]["model_read"]
+            for k in ("model_read", "model_write", "ply_read"):
+                row[k + "_s"] = r["seconds"][k]
+            io_rows.append(row)
+    return size_rows, io_rows, notes, meta
+
+
+def draco_ms(stdout, what):
+    """Draco's own time from draco_encoder's "(444 ms to encode)" or draco_decoder's "(118 ms to decode)", in
+    seconds (whole milliseconds: at least 1 ms, so that a ratio never divides by zero)."""
+    import re
+    m = re.search(r"\((\d+) ms to %s\)" % what, stdout)
+    return max(1, int(m.group(1))) * 1e-3 if m else ""
+
+
+def draco_version():
+    try:
+        return subprocess.run(["dpkg-query", "-W", "-f", "${Version}", "draco"], capture_output=True,
+                              text=True).stdout.split("+")[0] or "(version unknown)"
+    except OSError:
+        return "(version unknown)"
+
+
+IO_TARGET_MB_S = 200.0
+
+
+def io_verdict(io_rows):
+    """One sentence on the one-thread rows against the targets (model read and write >= 200 MB/s of PLY, model
+    read faster than PLY read)."""
+    one = [r for r in io_rows if int(r["threads"]) == 1]
+    if not one:
+        return ""
+    count = lambda f: sum(1 for r in one if f(r))
+    return ("On one thread, model read reaches %.0f MB/s of PLY in %d of %d cases, model write (serialize, write, "
+            "fsync) in %d, serialize alone in %d; the model loads faster than its PLY in %d of %d." % (
+                IO_TARGET_MB_S, count(lambda r: r["model_read_mb_s"] >= IO_TARGET_MB_S), len(one),
+                count(lambda r: r["model_write_mb_s"] >= IO_TARGET_MB_S),
+                count(lambda r: r["model_serialize_mb_s"] >= IO_TARGET_MB_S),
+                count(lambda r: r["model_read_over_ply_read_speed"] > 1), len(one)))
+
+
+# ---------------------------------------------------------------------------------------------------------------
 # Plots and report
 
 def plot(fidelity, extraction, render_rows, out):
@@ -400,15 +565,12 @@ def main():
     write_csv(os.path.join(out, "extraction-ratios.csv"), ratio_rows, list(ratio_rows[0].keys()))
     plots = plot(fidelity, extraction, render_rows, out)
 
-    size_rows = []
-    for r in extraction:
-        if r["method"] == "cip-patches-fitted" and int(r["threads"]) == 1:
-            mc = next(x for x in extraction if x["case"] == r["case"] and x["method"] == "cip-marching-cubes")
-            size_rows.append({"case": r["case"], "input_bytes": r["input_bytes"], "model_bytes": r["output_bytes"],
-                              "mc_ply_bytes": mc["output_bytes"],
-                              "model_over_mc": int(r["output_bytes"]) / max(1, int(mc["output_bytes"])),
-                              "model_over_input": int(r["output_bytes"]) / max(1, int(r["input_bytes"]))})
+    t_size = time.perf_counter()
+    cases = size_cases(extraction, args.quick, args.shared_data)
+    size_rows, io_rows, size_notes, size_meta = size_section(args.build_dir, out, cases, args.quick)
+    print("size and model I/O sections: %.1f s" % (time.perf_counter() - t_size), file=sys.stderr)
     write_csv(os.path.join(out, "size.csv"), size_rows, list(size_rows[0].keys()))
+    write_csv(os.path.join(out, "model-io.csv"), io_rows, list(io_rows[0].keys()))
 
     rel = lambda p: os.path.relpath(p, out)
     md = ["# cip benchmarks" + (" (quick run)" if args.quick else ""), "",
@@ -436,9 +598,70 @@ def main():
           "Ratios (peer time / cip-patches-fitted time, same case and threads; below 1 means the peer is faster):", "",
           table(ratio_rows, ["case", "threads", "peer", "peer_time_over_cip_fitted"],
                 {"peer_time_over_cip_fitted": "%.2f"}), "",
-          "## Size", "", "Model file (`.cip`) against the marching-cubes mesh (binary PLY, indexed, float positions and "
-          "normals) and the input volume (analytic fields counted as float32 volumes).", "",
-          table(size_rows, list(size_rows[0].keys()), {"model_over_mc": "%.2f", "model_over_input": "%.2f"}), "",
+          "## Size", "",
+          "Model file (`.cip`, format version %d) against the marching-cubes mesh of the same cells, stored plainly "
+          "and through mesh compressors, and against the input volume. Each row is one `extract --method METHOD "
+          "--mc-mesh` run: the model and the mesh come from the same build, the mesh's triangles lie in the model's "
+          "non-empty cells, one or a few per cell (docs/meshes.md)." % size_meta["format"], "",
+          "- case, iso, method: the input, the isovalue and the patch construction (fitted: extract's default; "
+          "paper: the corner I-patch paper's). Analytic fields are sampled on [-1,1]³ with N cells per axis.",
+          "- patch_cells: the model's non-empty cells (`extract --stats-json`, `model.non_empty_cells`); the "
+          "per-cell columns divide each size by it. mc_vertices, mc_triangles: the marching-cubes mesh.",
+          "- input_bytes: the volume file(s) on disk (analytic fields counted as float32 volumes). model_bytes: the "
+          "`.cip` file.",
+          "- mc_ply_bytes: `extract --mc-mesh` as binary little-endian PLY (float32 positions and unit normals per "
+          "vertex, indexed triangles). ply_gz_bytes: that file through Python's gzip at level 9.",
+          "- draco_bytes: `draco_encoder -i mesh.ply -o mesh.drc %s` (Draco %s; positions quantised to 14 bits, "
+          "the PLY's normals to 10 bits, compression level 7, edgebreaker; Draco drops the triangles that "
+          "quantisation makes degenerate); draco_encode_s and draco_decode_s are the times draco_encoder and "
+          "draco_decoder print (whole milliseconds)." % (" ".join(DRACO), size_meta["draco"]),
+          "- meshopt_bytes: `cip_bench mesh-codecs`, meshoptimizer %s as its documentation recommends: positions "
+          "quantised to 16 bits per component over the mesh's bounds, normals octahedral with 8 bits per component "
+          "(meshopt_encodeFilterOct), meshopt_optimizeVertexCache, vertex fetch order over both streams "
+          "(meshopt_optimizeVertexFetchRemap), meshopt_encodeVertexBuffer on each stream and "
+          "meshopt_encodeIndexBuffer, plus a %d-byte header (bounds, counts). meshopt_oct10_bytes: the same with "
+          "10-bit normals (as Draco's). meshopt_zstd_bytes: the meshopt_bytes streams through zstd level 19. "
+          "meshopt_encode_s, meshopt_decode_s: best of several runs in-process, decode to float positions, float "
+          "normals and 32-bit indices (the decode is checked against the input)." % (
+              size_meta["meshopt"], size_meta["header"]),
+          "- model_over_X: model_bytes / X's bytes (below 1: the model is smaller); model_over_mc divides by "
+          "mc_ply_bytes. size.csv also holds the Draco and meshoptimizer encode and decode times and the largest "
+          "normal error of the meshoptimizer decode.", ""] + ["- " + n for n in size_notes] + (
+              [""] if size_notes else []) + [
+          table(size_rows, ["case", "iso", "method", "patch_cells", "mc_triangles", "input_bytes", "model_bytes",
+                            "mc_ply_bytes", "ply_gz_bytes", "draco_bytes", "meshopt_bytes", "meshopt_oct10_bytes",
+                            "meshopt_zstd_bytes"], {"iso": "%g"}), "",
+          "Bytes per patch cell and ratios:", "",
+          table(size_rows, ["case", "iso", "method", "model_bytes_per_cell", "ply_bytes_per_cell",
+                            "ply_gz_bytes_per_cell", "draco_bytes_per_cell", "meshopt_bytes_per_cell",
+                            "meshopt_zstd_bytes_per_cell", "model_over_mc", "model_over_ply_gz", "model_over_draco",
+                            "model_over_meshopt", "model_over_meshopt_zstd", "model_over_input"],
+                dict({"iso": "%g"}, **{k: "%.1f" for k in size_rows[0] if k.endswith("_per_cell")},
+                     **{k: "%.2f" for k in size_rows[0] if k.startswith("model_over")})), "",
+          "## Model read and write throughput", "",
+          "`cip_bench model-io --model M.cip --ply MC.ply`, in-process, best of several runs, the file in the page "
+          "cache, for the models and meshes of the size table. Every figure is in MB/s *of the equivalent PLY*: "
+          "the bytes of the marching-cubes PLY of the same cells divided by the operation's time, so that the "
+          "model and the mesh are measured against one yardstick whatever their own sizes. threads: TBB limited "
+          "by tbb::global_control to one thread, then all. model_read: readModel (read the file, parse, validate); "
+          "model_parse: parseModel on the bytes in memory; model_serialize: serializeModel; model_write: "
+          "writeModel (serialise, write a temporary file, fsync, rename); ply_read, ply_parse, ply_write: cip's "
+          "PLY reader and writer (mesh/ply.h) on the mesh, the same way. meshopt_decode_mb_s, draco_decode_mb_s: "
+          "the meshoptimizer and Draco decodes of the size table (the same figure on both rows: neither is "
+          "parallel). model_read_over_ply_read_speed: PLY read time / model read time (above 1: the model loads "
+          "faster). Before each timed run the heap's free memory goes back to the system, as in a fresh process, "
+          "so every run pays for its allocations' page faults; cip_bench runs with the huge-page heap of the whole "
+          "run (see Extraction), and without it these figures are several times lower on machines where page "
+          "faults are dear (virtual machines). model_write includes an fsync, whose cost depends on the disk "
+          "more than on the model; model_serialize is the codec's own figure.", "",
+          "Targets (issue 32): model read and write at least %.0f MB/s of equivalent PLY on one core, and a model "
+          "loads faster than its mesh's PLY. %s" % (IO_TARGET_MB_S, io_verdict(io_rows)), "",
+          table(io_rows, ["case", "iso", "method", "threads", "ply_bytes", "model_bytes", "model_read_mb_s",
+                          "model_parse_mb_s", "model_serialize_mb_s", "model_write_mb_s", "ply_read_mb_s",
+                          "ply_parse_mb_s", "ply_write_mb_s", "meshopt_decode_mb_s", "draco_decode_mb_s",
+                          "model_read_over_ply_read_speed"],
+                dict({"iso": "%g"}, **{k: "%.0f" for k in io_rows[0] if k.endswith("_mb_s")},
+                     model_read_over_ply_read_speed="%.2f")), "",
           "## Rendering", "", "raycast on the model (exact ray–patch intersection) against Embree triangles on the "
           "marching-cubes mesh (`raycast --mesh`), same camera and image size; vdb_render (OpenVDB's level-set ray "
           "tracer) on the VDB level set with the same camera, timed as a whole process (it reports no render time).",
