@@ -17,7 +17,8 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
   j["reconstruction"] = s.reconstruction;
   std::array<std::size_t, 5> loops{};
   for (const auto& c : m.cells) loops[std::min<std::size_t>(c.numLoops, 4)]++;
-  j["model"] = {{"non_empty_cells", m.cells.size()},
+  j["model"] = {{"format_version", s.modelVersion},
+                {"non_empty_cells", m.cells.size()},
                 {"isovertices", m.vertices.size()},
                 {"corners", m.corners.size()},
                 {"loops_per_cell", {{"1", loops[1]}, {"2", loops[2]}, {"3", loops[3]}, {"4", loops[4]}}}};

@@ -19,15 +19,17 @@ struct ExtractStats {
   std::map<std::string, std::size_t> bytesWritten;  ///< per output file
   std::optional<FittingStats> fitting;              ///< the fitted construction's fallback (method fitted)
   std::optional<ModelDisplacement> storage;         ///< --check-storage: the model as stored against as built
+  int modelVersion = 2;                             ///< the format the model file was written in
 };
 
-/// Writes the stats and the model's counts (non-empty cells, isovertices, corners, loops-per-cell histogram)
-/// as JSON, atomically; for the fitted method also "fitting": rounds (and whether the last one was undone),
-/// blended isovertices and the cells left without a sign-correct coefficient, and, when the model followed a
-/// reference of the samples (Model::reconstruction: not with exact normals), the reconstruction of it and,
-/// when auto chose it, "sampling": the effective wavelength (null when infinite), the sixth-to-fourth
-/// difference ratio and the cells measured (reconstruction_choice.h). With --check-storage, "storage": how
-/// far the stored model's surface lies from the built one's (model_displacement.h).
+/// Writes the stats and the model's counts (the file format version, non-empty cells, isovertices, corners,
+/// loops-per-cell histogram) as JSON, atomically; for the fitted method also "fitting": rounds (and whether
+/// the last one was undone), blended isovertices and the cells left without a sign-correct coefficient, and,
+/// when the model followed a reference of the samples (Model::reconstruction: not with exact normals), the
+/// reconstruction of it and, when auto chose it, "sampling": the effective wavelength (null when infinite),
+/// the sixth-to-fourth difference ratio and the cells measured (reconstruction_choice.h). With
+/// --check-storage, "storage": how far the stored model's surface lies from the built one's
+/// (model_displacement.h).
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

@@ -34,7 +34,7 @@ struct Options {
   std::string input, output, mcMesh, patchMesh, statsJson;
   std::string normals = "gradient", central = "zero", method = "fitted", reconstruction = "auto";
   std::optional<double> iso;
-  int resolution = 64, subdiv = 4, threads = 0;
+  int resolution = 64, subdiv = 4, threads = 0, modelVersion = 2;
   bool quiet = false, skipNonFinite = false, checkStorage = false;
   // raw input
   std::string dims, type, endian = "little", grid;
@@ -182,12 +182,12 @@ void printSummary(const Options& opt, const cip::BuildOptions& build, const cip:
                  cip::kCentral8Wavelength);
 }
 
-/// --check-storage: measures the model as a reader gets it back from the file against the model as built.
-void checkStorage(const Options& opt, const cip::Model& model, cip::ExtractStats& stats) {
+/// --check-storage: measures the model as stored (what a reader gets back from the file) against the model as
+/// built.
+void checkStorage(const Options& opt, const cip::Model& built, const cip::Model& stored,
+                  cip::ExtractStats& stats) {
   auto t = Clock::now();
-  const std::vector<std::uint8_t> bytes = cip::serializeModel(model);
-  const cip::Model stored = cip::parseModel(bytes.data(), bytes.size(), opt.output);
-  stats.storage = cip::measureModelDisplacement(model, stored);
+  stats.storage = cip::measureModelDisplacement(built, stored);
   stats.seconds["check_storage"] = secondsSince(t);
   if (!opt.quiet)
     std::fprintf(
@@ -253,13 +253,23 @@ int run(const Options& opt) {
   stats.seconds["build_assemble"] = timings.assemble;
   stats.seconds["build_fit"] = timings.fit;
 
+  // Everything after this point describes the model as the file stores it (format 2 quantises), never the
+  // model as built.
   auto t2 = Clock::now();
-  stats.bytesWritten[opt.output] = cip::writeModel(model, opt.output);
+  cip::ModelFileOptions fileOptions;
+  fileOptions.version = static_cast<std::uint32_t>(opt.modelVersion);
+  const std::vector<std::uint8_t> bytes = cip::serializeModel(model, fileOptions);
+  stats.bytesWritten[opt.output] = cip::writeModelBytes(bytes, opt.output);
   stats.seconds["write_model"] = secondsSince(t2);
-  writeMeshes(opt, model, stats);
-  if (!opt.quiet) printSummary(opt, options, model, stats);
-  if (opt.checkStorage) checkStorage(opt, model, stats);
-  if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, model);
+  auto t3 = Clock::now();
+  cip::Model stored = cip::parseModel(bytes.data(), bytes.size(), opt.output);
+  stats.seconds["read_back_model"] = secondsSince(t3);
+  stats.modelVersion = opt.modelVersion;
+  if (opt.checkStorage) checkStorage(opt, model, stored, stats);
+  model = cip::Model();
+  writeMeshes(opt, stored, stats);
+  if (!opt.quiet) printSummary(opt, options, stored, stats);
+  if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, stored);
   return 0;
 }
 
@@ -342,6 +352,11 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 1024));
   app.add_flag("--skip-nonfinite", opt.skipNonFinite,
                "leave cells with NaN/Inf voxels empty instead of failing, e.g. --skip-nonfinite");
+  app.add_option("--model-version", opt.modelVersion,
+                 "model file format: 2 (default: compact, within 0.01 voxel of the model as built, "
+                 "docs/model-format.md) or 1 (every number in full precision, ~20x larger), e.g. "
+                 "--model-version 1")
+      ->check(CLI::IsMember({1, 2}));
   app.add_flag("--check-storage", opt.checkStorage,
                "after writing, measure how far the surface of the model as stored lies from the model as "
                "built (on rays through every cell: distance in voxels, normal angle; docs/model-format.md), "

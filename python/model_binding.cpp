@@ -85,7 +85,7 @@ py::tuple extract(const py::object& input, const py::object& level, const py::ob
             const DenseGrid g = array->toGrid("numpy array");
             range = g.range();
             options.isovalue = iso.value_or(0.5 * (range.first + range.second));
-            *model = buildNaming([&] { return buildModel(g, options); });
+            *model = storedModel(buildNaming([&] { return buildModel(g, options); }));
             return;
           }
           VolumeReadOptions read;
@@ -96,8 +96,8 @@ py::tuple extract(const py::object& input, const py::object& level, const py::ob
           if (!iso && !volume.isLevelSet)
             throw Error(path + ": no default isovalue for this input; give one with level=");
           options.isovalue = iso.value_or(0.0);
-          *model = buildNaming(
-              [&] { return buildModel(volume.geometry, volume.bricks, options, volume.description); });
+          *model = storedModel(buildNaming(
+              [&] { return buildModel(volume.geometry, volume.bricks, options, volume.description); }));
         });
       },
       progress);

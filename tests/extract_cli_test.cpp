@@ -4,6 +4,7 @@
 // Each test in a folder of its own.
 #include <gtest/gtest.h>
 
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -265,22 +266,30 @@ TEST(ExtractCli, GridSelectsTheVdbGrid) {
   EXPECT_FALSE(std::filesystem::exists(missing));
 }
 
-// --check-storage measures the written model against the built one (0 while the file is lossless) and reports
-// it on standard error and under "storage" in the stats file, keys added beside the others; without the flag
-// neither appears, and --quiet keeps the line off standard error.
+// --check-storage measures the written model against the built one and reports it on standard error and under
+// "storage" in the stats file, keys added beside the others: within the format's bounds for format 2 (the
+// default), exactly 0 for the lossless format 1; without the flag neither appears, and --quiet keeps the line
+// off standard error.
 TEST(ExtractCli, CheckStorageReportsHowFarTheStoredSurfaceMoves) {
   test::ScratchDir dir;
   const std::string json = dir.file("stats.json");
   const std::string common =
       kExtract + " sphere --resolution 16 -o " + dir.file("s.cip") + " --stats-json " + json;
-  test::CommandResult r = test::run(common + " --check-storage");
+  test::CommandResult r = test::run(common + " --check-storage --model-version 1");
   ASSERT_EQ(r.status, 0) << r.err;
   std::string text = test::slurp(json);
   for (const char* key : {"\"storage\": {", "\"max_distance_voxels\": 0.0", "\"mean_distance_voxels\": 0.0",
-                          "\"max_normal_degrees\": 0.0", "\"one_sided_hits\": 0",
+                          "\"max_normal_degrees\": 0.0", "\"one_sided_hits\": 0", "\"format_version\": 1",
                           "\"check_storage\": ", "\"non_empty_cells\": "})
     EXPECT_NE(text.find(key), std::string::npos) << key << "\n" << text;
   EXPECT_NE(r.err.find("storage: the stored surface moves by at most 0 voxel"), std::string::npos) << r.err;
+  r = test::run(common + " --check-storage");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const nlohmann::json stats = nlohmann::json::parse(test::slurp(json));
+  EXPECT_EQ(stats["model"]["format_version"], 2);
+  const double moved = stats["storage"]["max_distance_voxels"];
+  EXPECT_GT(moved, 0.0);
+  EXPECT_LE(moved, 0.01);
   r = test::run(common + " --check-storage --quiet");
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(r.err.find("storage:"), std::string::npos) << r.err;

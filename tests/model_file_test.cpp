@@ -20,6 +20,8 @@ using namespace cip;
 
 namespace {
 
+const ModelFileOptions kVersion1{1, {}};
+
 Model sampleModel() {
   DenseGrid g = test::randomVolume(8, 42);
   BuildOptions o;
@@ -49,15 +51,16 @@ std::size_t countsOffset(const Model& m) {
 
 }  // namespace
 
+// Version 1 stores every number: a model comes back bit for bit.
 TEST(ModelFile, RoundTripIsIdentical) {
   Model m = sampleModel();
   ASSERT_GT(m.cells.size(), 100u);
   test::ScratchDir dir;
   std::string path = dir.file("roundtrip.cip");
-  std::size_t written = writeModel(m, path);
+  std::size_t written = writeModel(m, path, kVersion1);
   EXPECT_EQ(written, std::filesystem::file_size(path));
   Model r = readModel(path);
-  EXPECT_EQ(serializeModel(r), serializeModel(m));
+  EXPECT_EQ(serializeModel(r, kVersion1), serializeModel(m, kVersion1));
   EXPECT_EQ(r.geometry.dims, m.geometry.dims);
   EXPECT_EQ(r.source, m.source);
   ASSERT_TRUE(m.reconstruction.has_value());  // the default build follows a reference of the samples
@@ -76,30 +79,34 @@ TEST(ModelFile, RoundTripIsIdentical) {
 }
 
 TEST(ModelFile, TruncatedFilesAreRejected) {
-  std::vector<std::uint8_t> bytes = serializeModel(sampleModel());
-  for (std::size_t len = 0; len < bytes.size(); len += 1 + len / 16) {
-    std::vector<std::uint8_t> cut(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(len));
-    EXPECT_THROW(parseModel(cut.data(), cut.size(), "cut.cip"), Error) << "length " << len;
+  for (const ModelFileOptions& options : {ModelFileOptions{}, kVersion1}) {
+    std::vector<std::uint8_t> bytes = serializeModel(sampleModel(), options);
+    for (std::size_t len = 0; len < bytes.size(); len += 1 + len / 16) {
+      std::vector<std::uint8_t> cut(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(len));
+      EXPECT_THROW(parseModel(cut.data(), cut.size(), "cut.cip"), Error) << "length " << len;
+    }
+    std::vector<std::uint8_t> longer = bytes;
+    longer.push_back(0);
+    EXPECT_THROW(parseModel(longer.data(), longer.size()), Error);
   }
-  std::vector<std::uint8_t> longer = bytes;
-  longer.push_back(0);
-  EXPECT_THROW(parseModel(longer.data(), longer.size()), Error);
 }
 
 TEST(ModelFile, CorruptedBytesAreRejected) {
-  std::vector<std::uint8_t> bytes = serializeModel(sampleModel());
-  std::mt19937 rng(9);
-  for (int trial = 0; trial < 300; ++trial) {
-    std::vector<std::uint8_t> bad = bytes;
-    std::size_t at = rng() % bad.size();
-    bad[at] = static_cast<std::uint8_t>(bad[at] ^ (1u << (rng() % 8)));
-    EXPECT_THROW(parseModel(bad.data(), bad.size()), Error) << "byte " << at;
+  for (const ModelFileOptions& options : {ModelFileOptions{}, kVersion1}) {
+    std::vector<std::uint8_t> bytes = serializeModel(sampleModel(), options);
+    std::mt19937 rng(9);
+    for (int trial = 0; trial < 300; ++trial) {
+      std::vector<std::uint8_t> bad = bytes;
+      std::size_t at = rng() % bad.size();
+      bad[at] = static_cast<std::uint8_t>(bad[at] ^ (1u << (rng() % 8)));
+      EXPECT_THROW(parseModel(bad.data(), bad.size()), Error) << "byte " << at;
+    }
   }
 }
 
 TEST(ModelFile, OutOfRangeFieldsAreRejectedEvenWithAValidChecksum) {
   Model m = sampleModel();
-  const std::vector<std::uint8_t> good = serializeModel(m);
+  const std::vector<std::uint8_t> good = serializeModel(m, kVersion1);
   auto patched = [&](std::size_t offset, const void* value, std::size_t n) {
     std::vector<std::uint8_t> b = good;
     std::memcpy(b.data() + offset, value, n);
@@ -172,7 +179,7 @@ TEST(ModelFile, ReadsVersion1FilesWrittenBeforeTheReconstructionByte) {
     EXPECT_EQ(m.normalMode, NormalMode::Gradient);
     EXPECT_FALSE(m.reconstruction.has_value());  // not recorded, and not made up
     EXPECT_GT(m.cells.size(), 10u);
-    EXPECT_TRUE(serializeModel(m) == bytes);
+    EXPECT_TRUE(serializeModel(m, kVersion1) == bytes);
     double worst = 0;
     for (std::size_t c = 0; c < m.cells.size(); ++c) {
       const CornerPatch patch = m.patch(c);

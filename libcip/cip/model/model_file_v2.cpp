@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <optional>
 
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
@@ -35,6 +36,8 @@ enum Stream : int {
   kSides,        ///< zigzag varints: side coefficient codes per owned face (when stored)
   kCentrals,     ///< zigzag varints: central coefficient codes per cell (when stored)
   kWeights,      ///< raw f64 corner coefficients per owned vertex (when stored)
+  kZeroMasks,    ///< one byte per vertex on a grid point: which of its normal's cross components are zero
+  kExact,        ///< vertices kept in full precision: count; per vertex index delta, f64 t, 3 f64 normal
   kNumStreams
 };
 
@@ -215,12 +218,16 @@ struct ChunkTopology {
   std::vector<std::uint8_t> config;
   std::vector<std::uint32_t> vertexKey;  ///< owned crossed edges: (lx + (B+1)(ly + (B+1) lz)) 3 + axis
   std::vector<std::uint16_t> tCode;
-  std::vector<std::uint8_t> vertexFlags;  ///< bit 0..3: clear rule per (other axis, step); 4: on a grid point
-                                          ///< that is above; 5: edge start above; 6: on a grid point
+  std::vector<std::uint8_t> vertexFlags;  ///< bit 0, 1: normal component along the first, second other axis
+                                          ///< is zero (grid-point vertices); 5: edge start above; 6: on a
+                                          ///< grid point
   std::vector<std::uint32_t> faceKey;     ///< owned crossed faces: point key 3 + normal axis
   std::vector<std::uint8_t> facePairing;  ///< 1: pairs around canonical vertices 0 and 3 (ambiguous faces)
   std::uint64_t vertexBase = 0, faceBase = 0;
   std::vector<std::vector<std::uint8_t>> streams;  ///< the reader keeps the decompressed streams
+  std::vector<std::uint32_t> exact;                ///< owned vertices kept in full precision, increasing
+  std::vector<double> exactT;
+  std::vector<Vec3> exactNormal;
 };
 
 std::uint32_t pointKey(const ChunkTopology& ch, std::int64_t B, const I3& p) {
@@ -321,22 +328,16 @@ void ownedItems(const Layout& L, ChunkTopology& ch) {
     }
 }
 
-/// Flags of a vertex at a grid point (t code 0 or max): the clear rule of normalClearOfUncrossedEdges, from
-/// the signs around that point.
-std::uint8_t gridPointFlags(const Layout& L, const ChunkTopology& ch, const I3& point, int axis) {
-  auto s = [&](const I3& p) { return ch.sign[static_cast<std::size_t>(ch.region.index(p))]; };
-  const int above = s(point);
-  std::uint8_t flags = static_cast<std::uint8_t>(64 | (above << 4));
+/// Whether the face at grid point p across `axis` has its four crossings (diagonal points share a sign).
+bool ambiguousFace(const ChunkTopology& ch, const I3& p, int axis) {
   const auto o = cube::otherAxes(axis);
-  for (int oi = 0; oi < 2; ++oi)
-    for (int st = 0; st < 2; ++st) {
-      I3 q = point;
-      q[o[oi]] += st ? 1 : -1;
-      if (q[o[oi]] < 0 || q[o[oi]] >= L.dims[o[oi]]) continue;
-      if (s(q) != above) continue;  // a crossed edge
-      flags = static_cast<std::uint8_t>(flags | (1u << (oi * 2 + st)));
-    }
-  return flags;
+  I3 pb = p, pc = p, pbc = p;
+  ++pb[o[0]];
+  ++pc[o[1]];
+  ++pbc[o[0]];
+  ++pbc[o[1]];
+  auto s = [&](const I3& x) { return ch.sign[static_cast<std::size_t>(ch.region.index(x))]; };
+  return s(p) == s(pbc) && s(pb) == s(pc) && s(p) != s(pb);
 }
 
 I3 keyPoint(const ChunkTopology& ch, std::int64_t B, std::uint32_t pointKeyValue) {
@@ -349,17 +350,13 @@ std::uint16_t maxTCode(int bits) {
   return static_cast<std::uint16_t>((1u << bits) - 1);
 }
 
-/// Sets the grid-point flags of vertices whose code puts them on a grid point.
-void gridPointVertexFlags(const Layout& L, ChunkTopology& ch, int positionBits) {
-  for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-    const std::uint16_t q = ch.tCode[v];
-    if (q != 0 && q != maxTCode(positionBits)) continue;
-    const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-    I3 point = keyPoint(ch, L.B, ch.vertexKey[v] / 3);
-    if (q != 0) ++point[axis];
-    ch.vertexFlags[v] =
-        static_cast<std::uint8_t>((ch.vertexFlags[v] & 32) | gridPointFlags(L, ch, point, axis));
-  }
+/// Marks the vertices whose code puts them on a grid point (flag 64): their normals keep the components the
+/// file says are exactly zero (the builder removes the ones that would tilt the corner plane across an
+/// uncrossed grid edge: normalClearOfUncrossedEdges).
+void gridPointVertexFlags(ChunkTopology& ch, int positionBits) {
+  for (std::size_t v = 0; v < ch.vertexKey.size(); ++v)
+    if (ch.tCode[v] == 0 || ch.tCode[v] == maxTCode(positionBits))
+      ch.vertexFlags[v] = static_cast<std::uint8_t>(ch.vertexFlags[v] | 64);
 }
 
 // ---- chunk lookup and assembly (shared) ---------------------------------------------------------------
@@ -566,26 +563,36 @@ Vec3 normalFromCode(const Vec3& pred, std::int64_t qu, std::int64_t qv, double s
   Vec3 n = (b1 * local.x() + b2 * local.y() + pred * local.z()).normalized();
   Vec3 towards = Vec3::Zero();
   towards[axis] = (flags & 32) ? -1.0 : 1.0;
-  if (flags & 64) {  // on a grid point: no tilt towards the other sign along its uncrossed grid edges
-    const bool above = flags & 16;
+  if (flags & 64) {  // on a grid point: the components that are exactly zero stay so
     const auto o = cube::otherAxes(axis);
     for (int oi = 0; oi < 2; ++oi)
-      for (int st = 0; st < 2; ++st) {
-        if (!((flags >> (oi * 2 + st)) & 1)) continue;
-        const double along = n[o[oi]] * (st ? 1.0 : -1.0);
-        if (above ? along < 0 : along > 0) n[o[oi]] = 0;
-      }
+      if ((flags >> oi) & 1) n[o[oi]] = 0;
   }
   return orientCornerNormal(n, towards);
 }
 
-void normalCode(const Vec3& pred, const Vec3& n, double step, std::int64_t& qu, std::int64_t& qv) {
+/// The residual code of normal n against its prediction. Where the reader's corrections (normalFromCode: the
+/// grid-point rule, the minimal angle to the edge) may have moved a stored normal off its code's direction,
+/// the codes around are searched for one that decodes to n exactly, so that writing a model read from a file
+/// gives the same file.
+void normalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uint8_t flags, std::int64_t& qu,
+                std::int64_t& qv) {
   Vec3 b1, b2;
   frameOf(pred, b1, b2);
   double u, v;
   octEncode(Vec3(n.dot(b1), n.dot(b2), n.dot(pred)), u, v);
   qu = std::llround(u / step);
   qv = std::llround(v / step);
+  const double towards = (flags & 32) ? -n[axis] : n[axis];
+  if (!(flags & 64) && towards > 0.0501) return;
+  if (normalFromCode(pred, qu, qv, step, axis, flags) == n) return;
+  for (std::int64_t du = -2; du <= 2; ++du)
+    for (std::int64_t dv = -2; dv <= 2; ++dv)
+      if (normalFromCode(pred, qu + du, qv + dv, step, axis, flags) == n) {
+        qu += du;
+        qv += dv;
+        return;
+      }
 }
 
 std::vector<std::uint8_t> startAboveFlags(const Chunks& chunks, std::size_t V) {
@@ -596,6 +603,64 @@ std::vector<std::uint8_t> startAboveFlags(const Chunks& chunks, std::size_t V) {
   return out;
 }
 
+using NormalCodes = std::vector<std::array<std::int64_t, 2>>;
+
+/// Sets every vertex normal from its prediction and residual code (both in file order).
+void applyNormalCodes(Model& m, const Chunks& chunks, const Skeleton& sk, const std::vector<Vec3>& pred,
+                      const NormalCodes& codes, double step) {
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    const ChunkTopology& ch = chunks.list[i];
+    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+      const std::size_t g = ch.vertexBase + v;
+      m.vertices[g].normal =
+          normalFromCode(pred[g], codes[g][0], codes[g][1], step, sk.vertexAxis[g], ch.vertexFlags[v]);
+    }
+  });
+}
+
+/// Vertices kept in full precision: their crossing parameters (before normals are predicted) ...
+void applyExactPositions(Model& m, const Chunks& chunks, const Skeleton& sk) {
+  for (const ChunkTopology& ch : chunks.list)
+    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
+      const std::size_t g = ch.vertexBase + ch.exact[k];
+      const int axis = sk.vertexAxis[g];
+      const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[ch.exact[k]] / 3);
+      m.vertices[g].position[axis] = static_cast<double>(p[axis]) + ch.exactT[k];
+    }
+}
+/// ... and their normals (after the others are decoded).
+void applyExactNormals(Model& m, const Chunks& chunks) {
+  for (const ChunkTopology& ch : chunks.list)
+    for (std::size_t k = 0; k < ch.exact.size(); ++k)
+      m.vertices[ch.vertexBase + ch.exact[k]].normal = ch.exactNormal[k];
+}
+
+/// The paper's side coefficient of every face (global face order) from the model's corners as stored: what
+/// the file codes the paper method's side coefficients against (a well-conditioned face then costs a zero).
+/// Each face is computed once, by the cell it bounds from below if that cell is in the model, else by the
+/// other (both would compute the same value: patch_coefficients.h).
+std::vector<double> paperSidePrediction(const Model& m, const Skeleton& sk, std::size_t faces) {
+  std::vector<double> pred(faces, 0.0);
+  std::vector<std::uint8_t> done(faces, 0);
+  for (int pass = 0; pass < 2; ++pass)
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, m.cells.size()), [&](const tbb::blocked_range<std::size_t>& r) {
+          for (std::size_t c = r.begin(); c < r.end(); ++c) {
+            const ModelCell& cell = m.cells[c];
+            const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
+            std::optional<CornerPatch> patch;
+            for (int f = pass; f < 6; f += 2) {
+              if (!((loops.faceMask >> f) & 1)) continue;
+              const auto fi = static_cast<std::size_t>(sk.face[c][static_cast<std::size_t>(f)]);
+              if (pass == 1 && done[fi]) continue;
+              if (!patch) patch = m.patch(c, loops);
+              pred[fi] = fitFaceCoefficient(faceCrossingsOf(*patch, f, (cell.pairing03 >> f) & 1));
+              if (pass == 0) done[fi] = 1;
+            }
+          }
+        });
+  return pred;
+}
 }  // namespace
 
 // =========================================================================================================
@@ -796,14 +861,26 @@ void buildChunkFromModel(const Model& m, const Layout& L, const CellFinder& find
     ch.streams[kPositionsLo].push_back(static_cast<std::uint8_t>(ch.tCode[v] & 0xFF));
     if (q.positionBits > 8) ch.streams[kPositionsHi].push_back(static_cast<std::uint8_t>(ch.tCode[v] >> 8));
   }
-  gridPointVertexFlags(L, ch, q.positionBits);
+  gridPointVertexFlags(ch, q.positionBits);
+  for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+    if (!(ch.vertexFlags[v] & 64)) continue;
+    std::uint8_t mask = 0;
+    if (src.vertex[v] >= 0) {
+      const Vec3& n = m.vertices[static_cast<std::size_t>(src.vertex[v])].normal;
+      const auto o = cube::otherAxes(static_cast<int>(ch.vertexKey[v] % 3));
+      mask = static_cast<std::uint8_t>((n[o[0]] == 0.0) | ((n[o[1]] == 0.0) << 1));
+    }
+    ch.vertexFlags[v] = static_cast<std::uint8_t>(ch.vertexFlags[v] | mask);
+    ch.streams[kZeroMasks].push_back(mask);
+  }
   // Faces: pairings and side coefficients.
   ch.facePairing.resize(ch.faceKey.size());
   src.side.resize(ch.faceKey.size());
   for (std::size_t f = 0; f < ch.faceKey.size(); ++f) {
     const int axis = static_cast<int>(ch.faceKey[f] % 3);
     const I3 p = keyPoint(ch, L.B, ch.faceKey[f] / 3);
-    bool seen = false, ambiguous = false;
+    bool seen = false;
+    const bool ambiguous = ambiguousFace(ch, p, axis);
     std::uint8_t pairing = 0;
     double side = 0;
     for (int s = 0; s < 2; ++s) {
@@ -814,7 +891,6 @@ void buildChunkFromModel(const Model& m, const Layout& L, const CellFinder& find
       const ModelCell& cell = m.cells[static_cast<std::size_t>(ci)];
       const int face = 2 * axis + s;
       const std::uint8_t pr = (cell.pairing03 >> face) & 1;
-      ambiguous = cube::isAmbiguousFace(cell.config, face);
       if (seen &&
           (cell.faceCoefficient[static_cast<std::size_t>(face)] != side || (ambiguous && pr != pairing)))
         throw Error(name +
@@ -827,6 +903,46 @@ void buildChunkFromModel(const Model& m, const Layout& L, const CellFinder& find
     ch.facePairing[f] = ambiguous ? pairing : 0;
     if (ambiguous) ch.streams[kPairings].push_back(pairing);
   }
+}
+
+/// The paper's side coefficients are recomputed from the stored corners; where a face's coefficient is
+/// ill-conditioned (the one from quantised corners differs from the built one by more than 1 %), the corners
+/// of the cells around that face are kept in full precision instead, so that the recomputed coefficients and
+/// the cells' corner planes are the built ones. Returns whether any vertex is kept.
+bool keepIllConditionedCells(const Model& m, const Model& sk, const Skeleton& skel, Chunks& chunks,
+                             const std::vector<ChunkSource>& sources, const std::vector<double>& prediction) {
+  std::vector<std::uint8_t> badFace(prediction.size(), 0);
+  for (std::size_t i = 0; i < chunks.list.size(); ++i)
+    for (std::size_t f = 0; f < sources[i].side.size(); ++f) {
+      const double w = sources[i].side[f], p = prediction[chunks.list[i].faceBase + f];
+      if (!(std::abs(w - p) <= 1.0 * (1.0 + std::abs(w)))) badFace[chunks.list[i].faceBase + f] = 1;
+    }
+  std::vector<std::uint8_t> keep(sk.vertices.size(), 0);
+  bool any = false;
+  for (std::size_t c = 0; c < sk.cells.size(); ++c) {
+    bool bad = false;
+    for (std::int64_t fi : skel.face[c])
+      if (fi >= 0 && badFace[static_cast<std::size_t>(fi)]) bad = true;
+    if (!bad) continue;
+    const ModelCell& cell = sk.cells[c];
+    for (int k = 0; k < cell.numCorners(); ++k)
+      keep[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]] = 1;
+    any = true;
+  }
+  if (!any) return false;
+  for (std::size_t i = 0; i < chunks.list.size(); ++i) {
+    ChunkTopology& ch = chunks.list[i];
+    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+      if (!keep[ch.vertexBase + v] || sources[i].vertex[v] < 0) continue;
+      const IsoVertex& mv = m.vertices[static_cast<std::size_t>(sources[i].vertex[v])];
+      const int axis = skel.vertexAxis[ch.vertexBase + v];
+      ch.exact.push_back(static_cast<std::uint32_t>(v));
+      ch.exactT.push_back(mv.position[axis] -
+                          static_cast<double>(keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3)[axis]));
+      ch.exactNormal.push_back(mv.normal);
+    }
+  }
+  return true;
 }
 
 void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& out) {
@@ -911,36 +1027,62 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   // The reader's skeleton and prediction, to code the normals against.
   Model sk;
   sk.geometry = m.geometry;
+  sk.method = m.method;
   const Skeleton skel = assemble(chunks, q.positionBits, sk, name);
   if (sk.cells.size() != m.cells.size())
     throw Error(name + ": the model cannot be written in format 2: its cells do not follow from its signs");
   const std::vector<Vec3> pred = predictNormals(sk, skel, startAboveFlags(chunks, sk.vertices.size()));
   const double nStep = std::ldexp(1.0, -q.normalBits);
-  std::uint8_t flags = 0;
-  if (m.method == PatchMethod::Fitted) flags |= kSidesStored;
+  std::uint8_t flags = kSidesStored;
   for (const ModelCell& c : m.cells)
     if (c.central != 0) flags |= kCentralsStored;
   if (m.method == PatchMethod::Fitted) flags |= kCentralsStored;
   for (const IsoVertex& v : m.vertices)
     if (v.weight != 1.0) flags |= kWeightsStored;
+  // Normal codes against the prediction, and the normals (and weights) a reader will have.
+  NormalCodes codes(sk.vertices.size(), {0, 0});
+  auto codeNormals = [&](const std::vector<Vec3>& prediction) {
+    tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+      const ChunkTopology& ch = chunks.list[i];
+      const ChunkSource& src = sources[i];
+      for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+        if (src.vertex[v] < 0) continue;
+        const IsoVertex& mv = m.vertices[static_cast<std::size_t>(src.vertex[v])];
+        normalCode(prediction[ch.vertexBase + v], mv.normal, nStep, skel.vertexAxis[ch.vertexBase + v],
+                   ch.vertexFlags[v], codes[ch.vertexBase + v][0], codes[ch.vertexBase + v][1]);
+        sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
+      }
+    });
+    applyNormalCodes(sk, chunks, skel, prediction, codes, nStep);
+    applyExactNormals(sk, chunks);
+  };
+  codeNormals(pred);
+  std::vector<double> sidePrediction =
+      m.method == PatchMethod::Paper ? paperSidePrediction(sk, skel, fb) : std::vector<double>(fb, 0.0);
+  if (m.method == PatchMethod::Paper &&
+      keepIllConditionedCells(m, sk, skel, chunks, sources, sidePrediction)) {
+    applyExactPositions(sk, chunks, skel);
+    codeNormals(predictNormals(sk, skel, startAboveFlags(chunks, sk.vertices.size())));
+    sidePrediction = paperSidePrediction(sk, skel, fb);
+  }
   std::vector<std::vector<std::uint8_t>> chunkBytes(chunks.list.size());
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     ChunkTopology& ch = chunks.list[i];
     const ChunkSource& src = sources[i];
     for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      std::int64_t qu = 0, qv = 0;
-      if (src.vertex[v] >= 0)
-        normalCode(pred[ch.vertexBase + v], m.vertices[static_cast<std::size_t>(src.vertex[v])].normal, nStep,
-                   qu, qv);
-      putVarint(ch.streams[kNormals], zigzag(qu));
-      putVarint(ch.streams[kNormals], zigzag(qv));
-      if (flags & kWeightsStored)
-        putRaw<double>(ch.streams[kWeights],
-                       src.vertex[v] >= 0 ? m.vertices[static_cast<std::size_t>(src.vertex[v])].weight : 1.0);
+      putVarint(ch.streams[kNormals], zigzag(codes[ch.vertexBase + v][0]));
+      putVarint(ch.streams[kNormals], zigzag(codes[ch.vertexBase + v][1]));
+      if (flags & kWeightsStored) putRaw<double>(ch.streams[kWeights], sk.vertices[ch.vertexBase + v].weight);
     }
-    if (flags & kSidesStored)
-      for (double w : src.side)
-        putVarint(ch.streams[kSides], zigzag(coefficientCode(w, q.sideStep, q.sideMantissa)));
+    putVarint(ch.streams[kExact], ch.exact.size());
+    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
+      putVarint(ch.streams[kExact], ch.exact[k] - (k ? ch.exact[k - 1] + 1 : 0));
+      putRaw<double>(ch.streams[kExact], ch.exactT[k]);
+      for (int a = 0; a < 3; ++a) putRaw<double>(ch.streams[kExact], ch.exactNormal[k][a]);
+    }
+    for (std::size_t f = 0; f < src.side.size(); ++f)
+      putVarint(ch.streams[kSides], zigzag(coefficientCode(src.side[f] - sidePrediction[ch.faceBase + f],
+                                                           q.sideStep, q.sideMantissa)));
     if (flags & kCentralsStored)
       for (std::int64_t c : src.cell)
         putVarint(ch.streams[kCentrals], zigzag(coefficientCode(m.cells[static_cast<std::size_t>(c)].central,
@@ -1088,12 +1230,20 @@ std::vector<std::uint8_t> decompress(const std::uint8_t*& at, const std::uint8_t
 
 }  // namespace
 
-Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string& name) {
+namespace {
+
+/// The header and directory of a version 2 file: the model's scalar fields, the quantisation, the chunks.
+struct FileHeader {
+  ModelFileV2Options q;
+  std::uint8_t flags = 0;
+  std::vector<DirectoryEntry> dir;
+};
+
+FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::string& name, Model& m,
+                      Layout& L) {
   HeaderReader r(data, size, name);
   r.skip(12);  // magic and version, checked by the caller
-  Model m;
-  Chunks chunks;
-  Layout& L = chunks.L;
+  FileHeader h;
   for (int a = 0; a < 3; ++a) {
     const auto d = r.get<std::int64_t>("dims");
     if (d < 1 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
@@ -1115,14 +1265,14 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   if (reconstruction > 1 + static_cast<int>(Reconstruction::Central8))
     r.fail("unknown reconstruction " + std::to_string(reconstruction));
   if (reconstruction > 0) m.reconstruction = static_cast<Reconstruction>(reconstruction - 1);
-  const auto flags = r.get<std::uint8_t>("flags");
-  if (flags > 7) r.fail("unknown flags");
+  h.flags = r.get<std::uint8_t>("flags");
+  if (h.flags > 7) r.fail("unknown flags");
   const auto sourceLen = r.get<std::uint32_t>("source length");
   if (sourceLen > kMaxSourceBytes) r.fail("source description longer than 64 KiB");
   if (sourceLen > r.remaining()) r.fail("truncated (source description)");
   m.source.assign(reinterpret_cast<const char*>(data + r.pos()), sourceLen);
   r.skip(sourceLen);
-  ModelFileV2Options q;
+  ModelFileV2Options& q = h.q;
   q.brick = static_cast<int>(r.get<std::uint32_t>("brick size"));
   q.positionBits = r.get<std::uint8_t>("position bits");
   q.normalBits = r.get<std::uint8_t>("normal bits");
@@ -1142,17 +1292,17 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   const auto chunkCount = r.get<std::uint64_t>("chunk count");
   if (chunkCount > r.remaining() / kDirectoryEntryBytes)
     r.fail("chunk count " + std::to_string(chunkCount) + " exceeds the file");
-  std::vector<DirectoryEntry> dir(chunkCount);
-  const std::uint64_t B3 = static_cast<std::uint64_t>(L.B * L.B * L.B),
-                      P3 = static_cast<std::uint64_t>(3 * (L.B + 1) * (L.B + 1) * (L.B + 1));
+  h.dir.resize(chunkCount);
+  const auto B3 = static_cast<std::uint64_t>(L.B * L.B * L.B);
+  const auto P3 = static_cast<std::uint64_t>(3 * (L.B + 1) * (L.B + 1) * (L.B + 1));
   std::uint64_t cellsInChunks = 0;
   for (std::size_t i = 0; i < chunkCount; ++i) {
-    DirectoryEntry& e = dir[i];
+    DirectoryEntry& e = h.dir[i];
     for (int a = 0; a < 3; ++a) {
       e.brick[a] = r.get<std::uint32_t>("chunk brick");
       if (e.brick[a] >= L.nb[a]) r.fail("chunk " + std::to_string(i) + " lies outside the grid");
     }
-    if (i > 0 && L.key(e.brick) <= L.key(dir[i - 1].brick))
+    if (i > 0 && L.key(e.brick) <= L.key(h.dir[i - 1].brick))
       r.fail("chunks are not in increasing brick order");
     e.cells = r.get<std::uint32_t>("chunk cell count");
     e.vertices = r.get<std::uint32_t>("chunk vertex count");
@@ -1167,181 +1317,223 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   const std::size_t headerEnd = r.pos();
   if (r.get<std::uint32_t>("header checksum") != crc(data, headerEnd)) r.fail("header checksum mismatch");
   std::uint64_t offset = r.pos();
-  for (DirectoryEntry& e : dir) {
+  for (DirectoryEntry& e : h.dir) {
     if (e.bytes > size - offset) r.fail("truncated (a chunk runs past the end of the file)");
     e.offset = offset;
     offset += e.bytes;
   }
   if (offset != size) r.fail(std::to_string(size - offset) + " unexpected bytes after the last chunk");
+  return h;
+}
 
-  // Phase 1, per chunk: checksum, streams, signs, cells, owned vertices and faces.
-  chunks.list.resize(chunkCount);
-  chunks.keys.resize(chunkCount);
-  std::uint64_t vb = 0, fb = 0;
-  for (std::size_t i = 0; i < chunkCount; ++i) {
-    chunks.keys[i] = L.key(dir[i].brick);
-    chunks.list[i].vertexBase = vb;
-    chunks.list[i].faceBase = fb;
-    vb += dir[i].vertices;
-    fb += dir[i].faces;
+/// Phase 1 of reading a chunk, independent of all others: checksum, streams, signs, cells, owned vertices and
+/// faces.
+void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, std::size_t i,
+               ChunkTopology& ch, const std::string& name) {
+  const DirectoryEntry& e = h.dir[i];
+  const std::string where = chunkName(name, i, e, L.B);
+  const std::uint8_t* at = data + e.offset;
+  const std::uint8_t* end = at + e.bytes;
+  if (crc(at, e.bytes) != e.crc) throw Error(where + ": checksum mismatch");
+  setupChunk(L, e.brick, ch);
+  const auto streamCap = static_cast<std::size_t>(16 * (L.B + 3) * (L.B + 3) * (L.B + 3) + 64);
+  ch.streams.resize(kNumStreams);
+  for (int s = 0; s < kNumStreams; ++s)
+    ch.streams[s] = decompress(at, end, streamCap, where + ", stream " + std::to_string(s) + ",");
+  if (at != end) throw Error(where + ": bytes after its last stream");
+  StreamReader rows(&ch.streams[kRows], where + ": sign rows");
+  decodeRows(ch, rows);
+  std::vector<std::uint32_t> nontrivial;
+  cellsFromSigns(L, ch, nontrivial);
+  StreamReader ex(&ch.streams[kExceptions], where + ": cell exceptions");
+  const std::uint64_t nEx = ex.varint();
+  if (nEx > nontrivial.size()) ex.fail("lists more cells than are crossed");
+  std::vector<std::uint32_t> skip(nEx);
+  std::uint64_t next = 0;
+  for (auto& x : skip) {
+    next += ex.varint();
+    if (next >= static_cast<std::uint64_t>(L.B * L.B * L.B)) ex.fail("lists a cell outside the brick");
+    x = static_cast<std::uint32_t>(next++);
   }
-  const std::size_t streamCap = static_cast<std::size_t>(16 * (L.B + 3) * (L.B + 3) * (L.B + 3) + 64);
-  tbb::parallel_for(std::size_t(0), static_cast<std::size_t>(chunkCount), [&](std::size_t i) {
-    const DirectoryEntry& e = dir[i];
-    ChunkTopology& ch = chunks.list[i];
-    const std::string where = chunkName(name, i, e, L.B);
-    const std::uint8_t* at = data + e.offset;
-    const std::uint8_t* end = at + e.bytes;
-    if (crc(at, e.bytes) != e.crc) throw Error(where + ": checksum mismatch");
-    setupChunk(L, e.brick, ch);
-    ch.streams.resize(kNumStreams);
-    for (int s = 0; s < kNumStreams; ++s)
-      ch.streams[s] = decompress(at, end, streamCap, where + ", stream " + std::to_string(s) + ",");
-    if (at != end) throw Error(where + ": bytes after its last stream");
-    StreamReader rows(&ch.streams[kRows], where + ": sign rows");
-    decodeRows(ch, rows);
-    std::vector<std::uint32_t> nontrivial;
-    cellsFromSigns(L, ch, nontrivial);
-    StreamReader ex(&ch.streams[kExceptions], where + ": cell exceptions");
-    const std::uint64_t nEx = ex.varint();
-    if (nEx > nontrivial.size()) ex.fail("lists more cells than are crossed");
-    std::vector<std::uint32_t> skip(nEx);
-    std::uint64_t at2 = 0;
-    for (auto& s : skip) {
-      at2 += ex.varint();
-      if (at2 >= B3) ex.fail("lists a cell outside the brick");
-      s = static_cast<std::uint32_t>(at2);
-      ++at2;
-    }
-    ex.expectEnd();
-    std::size_t k = 0;
-    for (std::uint32_t local : nontrivial) {
-      while (k < skip.size() && skip[k] < local) ++k;
-      if (k < skip.size() && skip[k] == local) continue;
-      ch.cells.push_back(local);
-      const I3 c{ch.origin[0] + local % L.B, ch.origin[1] + (local / L.B) % L.B,
-                 ch.origin[2] + local / (L.B * L.B)};
-      ch.config.push_back(cellConfig(ch, c));
-    }
-    if (ch.cells.size() != e.cells)
-      throw Error(where + ": its signs give " + std::to_string(ch.cells.size()) +
-                  " cells, the directory says " + std::to_string(e.cells));
-    ownedItems(L, ch);
-    if (ch.vertexKey.size() != e.vertices || ch.faceKey.size() != e.faces)
-      throw Error(where + ": its signs do not give the directory's vertex and face counts");
-    StreamReader lo(&ch.streams[kPositionsLo], where + ": positions"),
-        hi(&ch.streams[kPositionsHi], where + ": positions");
-    const std::uint16_t tMax = maxTCode(q.positionBits);
-    ch.tCode.resize(ch.vertexKey.size());
-    for (auto& t : ch.tCode) {
-      std::uint32_t v = lo.byte();
-      if (q.positionBits > 8) v |= static_cast<std::uint32_t>(hi.byte()) << 8;
-      if (v > tMax) lo.fail("has a crossing parameter out of range");
-      t = static_cast<std::uint16_t>(v);
-    }
-    lo.expectEnd();
-    if (q.positionBits > 8) hi.expectEnd();
-    gridPointVertexFlags(L, ch, q.positionBits);
-    StreamReader pr(&ch.streams[kPairings], where + ": face pairings");
-    ch.facePairing.assign(ch.faceKey.size(), 0);
-    for (std::size_t f = 0; f < ch.faceKey.size(); ++f) {
-      const int axis = static_cast<int>(ch.faceKey[f] % 3);
-      const I3 p = keyPoint(ch, L.B, ch.faceKey[f] / 3);
-      const auto o = cube::otherAxes(axis);
-      I3 pb = p, pc = p, pbc = p;
-      ++pb[o[0]];
-      ++pc[o[1]];
-      ++pbc[o[0]];
-      ++pbc[o[1]];
-      auto s = [&](const I3& x) { return ch.sign[static_cast<std::size_t>(ch.region.index(x))]; };
-      if (s(p) == s(pbc) && s(pb) == s(pc) && s(p) != s(pb)) {
-        const std::uint8_t b = pr.byte();
-        if (b > 1) pr.fail("has a pairing that is not 0 or 1");
-        ch.facePairing[f] = b;
-      }
-    }
-    pr.expectEnd();
-  });
-  const Skeleton sk = assemble(chunks, q.positionBits, m, name);
-  // Normals against their prediction.
-  const std::vector<std::uint8_t> startAbove = startAboveFlags(chunks, m.vertices.size());
-  const std::vector<Vec3> pred = predictNormals(m, sk, startAbove);
-  const double nStep = std::ldexp(1.0, -q.normalBits);
-  const std::int64_t nLimit = (std::int64_t(1) << q.normalBits) + 1;
+  ex.expectEnd();
+  std::size_t k = 0;
+  for (std::uint32_t local : nontrivial) {
+    while (k < skip.size() && skip[k] < local) ++k;
+    if (k < skip.size() && skip[k] == local) continue;
+    ch.cells.push_back(local);
+    ch.config.push_back(cellConfig(ch, {ch.origin[0] + local % L.B, ch.origin[1] + (local / L.B) % L.B,
+                                        ch.origin[2] + local / (L.B * L.B)}));
+  }
+  if (ch.cells.size() != e.cells)
+    throw Error(where + ": its signs give " + std::to_string(ch.cells.size()) +
+                " cells, the directory says " + std::to_string(e.cells));
+  ownedItems(L, ch);
+  if (ch.vertexKey.size() != e.vertices || ch.faceKey.size() != e.faces)
+    throw Error(where + ": its signs do not give the directory's vertex and face counts");
+  StreamReader lo(&ch.streams[kPositionsLo], where + ": positions");
+  StreamReader hi(&ch.streams[kPositionsHi], where + ": positions");
+  const std::uint16_t tMax = maxTCode(h.q.positionBits);
+  ch.tCode.resize(ch.vertexKey.size());
+  for (auto& t : ch.tCode) {
+    std::uint32_t v = lo.byte();
+    if (h.q.positionBits > 8) v |= static_cast<std::uint32_t>(hi.byte()) << 8;
+    if (v > tMax) lo.fail("has a crossing parameter out of range");
+    t = static_cast<std::uint16_t>(v);
+  }
+  lo.expectEnd();
+  hi.expectEnd();
+  gridPointVertexFlags(ch, h.q.positionBits);
+  StreamReader zr(&ch.streams[kZeroMasks], where + ": zero normal components");
+  for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+    if (!(ch.vertexFlags[v] & 64)) continue;
+    const std::uint8_t mask = zr.byte();
+    if (mask > 3) zr.fail("has a mask out of range");
+    ch.vertexFlags[v] = static_cast<std::uint8_t>(ch.vertexFlags[v] | mask);
+  }
+  zr.expectEnd();
+  StreamReader pr(&ch.streams[kPairings], where + ": face pairings");
+  ch.facePairing.assign(ch.faceKey.size(), 0);
+  for (std::size_t f = 0; f < ch.faceKey.size(); ++f) {
+    if (!ambiguousFace(ch, keyPoint(ch, L.B, ch.faceKey[f] / 3), static_cast<int>(ch.faceKey[f] % 3)))
+      continue;
+    const std::uint8_t b = pr.byte();
+    if (b > 1) pr.fail("has a pairing that is not 0 or 1");
+    ch.facePairing[f] = b;
+  }
+  pr.expectEnd();
+  StreamReader xr(&ch.streams[kExact], where + ": full-precision vertices");
+  const std::uint64_t nExact = xr.varint();
+  if (nExact > ch.vertexKey.size()) xr.fail("lists more vertices than the chunk has");
+  std::uint64_t nextVertex = 0;
+  for (std::uint64_t x = 0; x < nExact; ++x) {
+    nextVertex += xr.varint();
+    if (nextVertex >= ch.vertexKey.size()) xr.fail("lists a vertex the chunk does not have");
+    ch.exact.push_back(static_cast<std::uint32_t>(nextVertex++));
+    const double t = xr.f64();
+    if (!(t >= 0 && t <= 1)) xr.fail("has a crossing parameter outside its edge");
+    ch.exactT.push_back(t);
+    Vec3 n;
+    for (int a = 0; a < 3; ++a) n[a] = xr.f64();
+    if (!(std::abs(n.norm() - 1.0) <= 1e-6)) xr.fail("has a normal that is not a unit vector");
+    ch.exactNormal.push_back(n);
+  }
+  xr.expectEnd();
+  ch.sign = {};
+  ch.rowUniform = {};
+}
+
+/// Normal codes (and corner coefficients, when stored) of every chunk, in file order.
+NormalCodes readNormalCodes(const Chunks& chunks, const FileHeader& h, Model& m, const std::string& name) {
+  NormalCodes codes(m.vertices.size());
+  const std::int64_t limit = (std::int64_t(1) << h.q.normalBits) + 1;
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
-    const std::string where = chunkName(name, i, dir[i], L.B);
+    const std::string where = chunkName(name, i, h.dir[i], chunks.L.B);
     StreamReader nr(&ch.streams[kNormals], where + ": normals");
     StreamReader wr(&ch.streams[kWeights], where + ": corner coefficients");
     for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      const std::int64_t qu = nr.svarint(), qv = nr.svarint();
-      if (std::abs(qu) > nLimit || std::abs(qv) > nLimit) nr.fail("has a normal code out of range");
-      const std::size_t g = ch.vertexBase + v;
-      m.vertices[g].normal = normalFromCode(pred[g], qu, qv, nStep, sk.vertexAxis[g], ch.vertexFlags[v]);
-      if (flags & kWeightsStored) {
-        m.vertices[g].weight = wr.f64();
-        if (!std::isfinite(m.vertices[g].weight)) wr.fail("has a non-finite corner coefficient");
+      auto& c = codes[ch.vertexBase + v];
+      c[0] = nr.svarint();
+      c[1] = nr.svarint();
+      if (std::abs(c[0]) > limit || std::abs(c[1]) > limit) nr.fail("has a normal code out of range");
+      if (h.flags & kWeightsStored) {
+        double& w = m.vertices[ch.vertexBase + v].weight;
+        w = wr.f64();
+        if (!std::isfinite(w)) wr.fail("has a non-finite corner coefficient");
       }
     }
     nr.expectEnd();
     wr.expectEnd();
   });
-  // Coefficients.
-  std::vector<double> side;
-  if (flags & kSidesStored) side.resize(fb);
-  std::vector<double> central(m.cells.size(), 0.0);
+  return codes;
+}
+
+/// Side coefficients (prediction + stored residual, per face) and central coefficients (per cell).
+void readCoefficients(const Chunks& chunks, const FileHeader& h, const Skeleton& sk, Model& m,
+                      const std::string& name) {
+  std::size_t faces = 0;
+  for (const ChunkTopology& ch : chunks.list) faces += ch.faceKey.size();
+  std::vector<double> side =
+      m.method == PatchMethod::Paper ? paperSidePrediction(m, sk, faces) : std::vector<double>(faces, 0.0);
   std::vector<std::uint64_t> cellBase(chunks.list.size() + 1, 0);
   for (std::size_t i = 0; i < chunks.list.size(); ++i)
     cellBase[i + 1] = cellBase[i] + chunks.list[i].cells.size();
-  std::vector<double> centralByChunk(cellBase.back(), 0.0);
+  std::vector<double> central(cellBase.back(), 0.0);
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
-    const std::string where = chunkName(name, i, dir[i], L.B);
+    const std::string where = chunkName(name, i, h.dir[i], chunks.L.B);
     StreamReader sr(&ch.streams[kSides], where + ": side coefficients");
     StreamReader cr(&ch.streams[kCentrals], where + ": central coefficients");
-    if (flags & kSidesStored)
-      for (std::size_t f = 0; f < ch.faceKey.size(); ++f)
-        side[ch.faceBase + f] = coefficientValue(sr.svarint(), q.sideStep, q.sideMantissa);
-    if (flags & kCentralsStored)
-      for (std::size_t c = 0; c < ch.cells.size(); ++c)
-        centralByChunk[cellBase[i] + c] = coefficientValue(cr.svarint(), q.centralStep, q.centralMantissa);
+    if (h.flags & kSidesStored)
+      for (std::size_t f = 0; f < ch.faceKey.size(); ++f) {
+        side[ch.faceBase + f] += coefficientValue(sr.svarint(), h.q.sideStep, h.q.sideMantissa);
+        if (!std::isfinite(side[ch.faceBase + f])) sr.fail("has a side coefficient out of range");
+      }
+    if (h.flags & kCentralsStored)
+      for (std::size_t c = 0; c < ch.cells.size(); ++c) {
+        central[cellBase[i] + c] = coefficientValue(cr.svarint(), h.q.centralStep, h.q.centralMantissa);
+        if (!std::isfinite(central[cellBase[i] + c])) cr.fail("has a central coefficient out of range");
+      }
     sr.expectEnd();
     cr.expectEnd();
   });
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, m.cells.size()),
-                    [&](const tbb::blocked_range<std::size_t>& rg) {
-                      for (std::size_t c = rg.begin(); c < rg.end(); ++c) {
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t c = r.begin(); c < r.end(); ++c) {
                         ModelCell& cell = m.cells[c];
-                        cell.central = centralByChunk[cellBase[sk.origin[c].chunk] + sk.origin[c].local];
-                        if (flags & kSidesStored) {
-                          for (int f = 0; f < 6; ++f) {
-                            const std::int64_t fi = sk.face[c][static_cast<std::size_t>(f)];
-                            cell.faceCoefficient[static_cast<std::size_t>(f)] =
-                                fi >= 0 ? side[static_cast<std::size_t>(fi)] : 0.0;
-                          }
-                        } else {
-                          const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
-                          CornerPatch p = m.patch(c, loops);
-                          for (int f = 0; f < 6; ++f)
-                            cell.faceCoefficient[static_cast<std::size_t>(f)] =
-                                ((loops.faceMask >> f) & 1)
-                                    ? fitFaceCoefficient(faceCrossingsOf(p, f, (cell.pairing03 >> f) & 1))
-                                    : 0.0;
+                        cell.central = central[cellBase[sk.origin[c].chunk] + sk.origin[c].local];
+                        for (int f = 0; f < 6; ++f) {
+                          const std::int64_t fi = sk.face[c][static_cast<std::size_t>(f)];
+                          cell.faceCoefficient[static_cast<std::size_t>(f)] =
+                              fi >= 0 ? side[static_cast<std::size_t>(fi)] : 0.0;
                         }
                       }
                     });
-  // Drop vertices no cell uses (crossings outside the model's cells).
-  std::vector<std::uint32_t> remap(m.vertices.size(), 0);
-  for (std::uint32_t v : m.corners) remap[v] = 1;
+}
+
+/// Drops vertices no cell uses (crossings next to cells the model leaves out).
+void dropUnusedVertices(Model& m) {
+  constexpr std::uint32_t kUnused = std::numeric_limits<std::uint32_t>::max();
+  std::vector<std::uint32_t> remap(m.vertices.size(), kUnused);
+  for (std::uint32_t v : m.corners) remap[v] = 0;
   std::uint32_t used = 0;
-  for (auto& x : remap) x = x ? used++ : std::numeric_limits<std::uint32_t>::max();
-  if (used != m.vertices.size()) {
-    std::vector<IsoVertex> kept(used);
-    for (std::size_t v = 0; v < m.vertices.size(); ++v)
-      if (remap[v] != std::numeric_limits<std::uint32_t>::max()) kept[remap[v]] = m.vertices[v];
-    m.vertices = std::move(kept);
-    for (auto& c : m.corners) c = remap[c];
+  for (auto& x : remap)
+    if (x == 0) x = used++;
+  if (used == m.vertices.size()) return;
+  std::vector<IsoVertex> kept(used);
+  for (std::size_t v = 0; v < m.vertices.size(); ++v)
+    if (remap[v] != kUnused) kept[remap[v]] = m.vertices[v];
+  m.vertices = std::move(kept);
+  for (auto& c : m.corners) c = remap[c];
+}
+
+}  // namespace
+
+Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string& name) {
+  Model m;
+  Chunks chunks;
+  const FileHeader h = readHeader(data, size, name, m, chunks.L);
+  const std::size_t n = h.dir.size();
+  chunks.list.resize(n);
+  chunks.keys.resize(n);
+  std::uint64_t vertices = 0, faces = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    chunks.keys[i] = chunks.L.key(h.dir[i].brick);
+    chunks.list[i].vertexBase = vertices;
+    chunks.list[i].faceBase = faces;
+    vertices += h.dir[i].vertices;
+    faces += h.dir[i].faces;
   }
+  tbb::parallel_for(std::size_t(0), n,
+                    [&](std::size_t i) { readChunk(data, chunks.L, h, i, chunks.list[i], name); });
+  const Skeleton sk = assemble(chunks, h.q.positionBits, m, name);
+  applyExactPositions(m, chunks, sk);
+  const std::vector<Vec3> pred = predictNormals(m, sk, startAboveFlags(chunks, m.vertices.size()));
+  const NormalCodes codes = readNormalCodes(chunks, h, m, name);
+  applyNormalCodes(m, chunks, sk, pred, codes, std::ldexp(1.0, -h.q.normalBits));
+  applyExactNormals(m, chunks);
+  readCoefficients(chunks, h, sk, m, name);
+  dropUnusedVertices(m);
   return m;
 }
 

@@ -1,0 +1,223 @@
+// Model file version 2 (model_file_v2.h): what it keeps exactly, what it quantises and by how much, that the
+// stored model does not depend on how it is chunked or on threads, that writing a stored model gives the same
+// file, and that damage is found and reported with the chunk it is in. (How far the stored surface moves is
+// stored_model_test.cpp.)
+#include <gtest/gtest.h>
+#include <tbb/global_control.h>
+#include <zlib.h>
+
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <random>
+
+#include "cip/core/error.h"
+#include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
+#include "cip/topology/cube_topology.h"
+#include "cip/volume/analytic_field.h"
+#include "support/random_volume.h"
+
+using namespace cip;
+
+namespace {
+
+Model fieldModel(const std::string& name, int n, PatchMethod method) {
+  const auto f = makeAnalyticField(name);
+  BuildOptions o;
+  o.isovalue = f->defaultIsovalue();
+  o.method = method;
+  return buildModel(sampleField(*f, n, name), o);
+}
+
+std::vector<std::uint8_t> withBrick(const Model& m, int brick) {
+  ModelFileOptions o;
+  o.v2.brick = brick;
+  return serializeModel(m, o);
+}
+
+// Offsets of the version 2 header (docs/model-format.md).
+std::size_t directoryOffset(const Model& m) {
+  return 8 + 4 + 24 + 24 + 24 + 8 + 4 + 4 + m.source.size() + 4 + 4 + 16 + 16;
+}
+constexpr std::size_t kEntryBytes = 36;
+
+std::uint32_t chunkCount(const std::vector<std::uint8_t>& b, const Model& m) {
+  std::uint64_t n;
+  std::memcpy(&n, b.data() + directoryOffset(m) - 8, 8);
+  return static_cast<std::uint32_t>(n);
+}
+
+// Re-seals the header checksum so that the structural checks are what must catch a change.
+void resealHeader(std::vector<std::uint8_t>& b, const Model& m) {
+  const std::size_t end = directoryOffset(m) + chunkCount(b, m) * kEntryBytes;
+  const auto c = static_cast<std::uint32_t>(crc32(0L, b.data(), static_cast<uInt>(end)));
+  std::memcpy(b.data() + end, &c, 4);
+}
+
+std::string parseError(const std::vector<std::uint8_t>& b) {
+  try {
+    parseModel(b.data(), b.size(), "test.cip");
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+void expectSamePatches(const Model& a, const Model& b) {
+  ASSERT_EQ(a.cells.size(), b.cells.size());
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (std::size_t c = 0; c < a.cells.size(); ++c) {
+    ASSERT_EQ(a.cells[c].index, b.cells[c].index);
+    const CornerPatch pa = a.patch(c), pb = b.patch(c);
+    for (int s = 0; s < 3; ++s) {
+      const Vec3 x(u(rng), u(rng), u(rng));
+      ASSERT_EQ(pa.value(x), pb.value(x)) << "cell " << c;
+    }
+  }
+}
+
+}  // namespace
+
+// The cells, their configurations, loops and corners are kept exactly; each vertex stays on its edge within
+// half a quantisation step (9 bits: 1/1022 of the edge), normals within a fraction of a degree, and the
+// coefficients within their steps.
+TEST(ModelFileV2, KeepsTopologyAndQuantisesWithinItsSteps) {
+  for (PatchMethod method : {PatchMethod::Fitted, PatchMethod::Paper}) {
+    SCOPED_TRACE(toString(method));
+    const Model m = fieldModel("torus", 24, method);
+    const Model s = storedModel(m);
+    ASSERT_EQ(s.cells.size(), m.cells.size());
+    ASSERT_EQ(s.corners.size(), m.corners.size());
+    ASSERT_EQ(s.vertices.size(), m.vertices.size());
+    double worstPosition = 0, worstDegrees = 0, worstSide = 0;
+    for (std::size_t c = 0; c < m.cells.size(); ++c) {
+      const ModelCell &a = m.cells[c], &b = s.cells[c];
+      ASSERT_EQ(a.index, b.index);
+      ASSERT_EQ(a.config, b.config);
+      ASSERT_EQ(m.loops(c).edges, s.loops(c).edges);
+      for (int k = 0; k < a.numCorners(); ++k) {
+        const IsoVertex& va = m.vertices[m.corners[a.firstCorner + k]];
+        const IsoVertex& vb = s.vertices[s.corners[b.firstCorner + k]];
+        worstPosition = std::max(worstPosition, (va.position - vb.position).norm());
+        worstDegrees =
+            std::max(worstDegrees, std::acos(std::min(1.0, va.normal.dot(vb.normal))) * 180 / M_PI);
+        EXPECT_EQ(vb.weight, 1.0);
+      }
+      // Fitted: step 0.002 up to 64 steps, then 6 bits of mantissa: half a step or 1/128 of the value.
+      for (int f = 0; f < 6; ++f)
+        worstSide = std::max(worstSide, std::abs(a.faceCoefficient[f] - b.faceCoefficient[f]) /
+                                            (0.001 + std::abs(a.faceCoefficient[f]) / 128));
+    }
+    EXPECT_GT(worstPosition, 0);  // it does quantise ...
+    EXPECT_LE(worstPosition, 0.5 / 511 + 1e-12);
+    EXPECT_LE(worstDegrees, 0.25);
+    if (method == PatchMethod::Fitted) {
+      EXPECT_LE(worstSide, 1.0 + 1e-9);
+    }
+  }
+}
+
+// The stored model is the same for any brick size and thread count (chunks only split the file), and writing
+// a stored model gives its file again, so reading and rewriting a file never drifts.
+TEST(ModelFileV2, StoredModelIsIndependentOfChunkingAndThreadsAndRewritesIdentically) {
+  for (PatchMethod method : {PatchMethod::Fitted, PatchMethod::Paper}) {
+    SCOPED_TRACE(toString(method));
+    const Model m = fieldModel("gyroid", 26, method);
+    const std::vector<std::uint8_t> big = withBrick(m, 64), small = withBrick(m, 8);
+    EXPECT_GT(chunkCount(small, m), 8u);
+    EXPECT_EQ(chunkCount(big, m), 1u);
+    const Model a = parseModel(big.data(), big.size()), b = parseModel(small.data(), small.size());
+    expectSamePatches(a, b);
+    {
+      tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+      EXPECT_EQ(withBrick(m, 8), small);
+    }
+    if (method == PatchMethod::Fitted) {
+      EXPECT_EQ(withBrick(a, 64), big);
+    } else {
+      const std::vector<std::uint8_t> again = withBrick(a, 64);
+      expectSamePatches(a, parseModel(again.data(), again.size()));
+    }
+  }
+}
+
+// Cells the model leaves out although their signs say crossed (here: next to non-finite samples skipped with
+// --skip-nonfinite) are listed as exceptions and stay out.
+TEST(ModelFileV2, CellsLeftOutStayOut) {
+  DenseGrid g = test::randomVolume(10, 7);
+  g.at(4, 5, 5) = std::numeric_limits<double>::quiet_NaN();
+  g.at(7, 2, 3) = std::numeric_limits<double>::infinity();
+  BuildOptions o;
+  o.skipNonFinite = true;
+  const Model m = buildModel(g, o);
+  const Model s = storedModel(m);
+  ASSERT_EQ(s.cells.size(), m.cells.size());
+  for (std::size_t c = 0; c < m.cells.size(); ++c) EXPECT_EQ(s.cells[c].index, m.cells[c].index);
+  EXPECT_EQ(s.vertices.size(), m.vertices.size());
+}
+
+// Damage is found and says where: a flipped bit in a chunk names the chunk and its brick; in the header, the
+// header checksum; counts and sizes that the file cannot back are refused before anything is allocated.
+TEST(ModelFileV2, DamageIsReportedWithItsChunk) {
+  const Model m = fieldModel("sphere", 30, PatchMethod::Fitted);
+  const std::vector<std::uint8_t> good = withBrick(m, 8);
+  const std::size_t dir = directoryOffset(m);
+  const std::uint32_t chunks = chunkCount(good, m);
+  ASSERT_GT(chunks, 3u);
+  const std::size_t firstChunk = dir + chunks * kEntryBytes + 4;
+  {
+    std::vector<std::uint8_t> b = good;
+    b[firstChunk + 20] ^= 4;
+    const std::string e = parseError(b);
+    EXPECT_NE(e.find("chunk 0 (brick "), std::string::npos) << e;
+    EXPECT_NE(e.find(", cells from ("), std::string::npos) << e;
+    EXPECT_NE(e.find("checksum mismatch"), std::string::npos) << e;
+  }
+  {
+    std::vector<std::uint8_t> b = good;
+    b[20] ^= 1;
+    EXPECT_NE(parseError(b).find("header checksum mismatch"), std::string::npos) << parseError(b);
+  }
+  auto patched = [&](std::size_t offset, const void* value, std::size_t n) {
+    std::vector<std::uint8_t> b = good;
+    std::memcpy(b.data() + offset, value, n);
+    resealHeader(b, m);
+    return parseError(b);
+  };
+  const std::uint32_t huge = 0xFFFFFFF0u;
+  EXPECT_NE(patched(dir + 12, &huge, 4).find("impossible counts"), std::string::npos);
+  EXPECT_NE(patched(dir + 16, &huge, 4).find("impossible counts"), std::string::npos);
+  const std::uint32_t one = 1;
+  EXPECT_NE(patched(dir + 16, &one, 4).find("vertex and face counts"), std::string::npos)
+      << patched(dir + 16, &one, 4);
+  const std::uint64_t longChunk = ~std::uint64_t(0) / 2;
+  EXPECT_NE(patched(dir + 24, &longChunk, 8).find("truncated"), std::string::npos);
+  {  // checked before the header checksum, which a huge count cannot be sealed with
+    std::vector<std::uint8_t> b = good;
+    const std::uint64_t manyChunks = ~std::uint64_t(0) / 64;
+    std::memcpy(b.data() + dir - 8, &manyChunks, 8);
+    EXPECT_NE(parseError(b).find("chunk count"), std::string::npos) << parseError(b);
+  }
+  const std::uint32_t outside = 1000;
+  EXPECT_NE(patched(dir, &outside, 4).find("outside the grid"), std::string::npos);
+  // A stream that declares more bytes than a brick can hold (the chunk's checksum re-sealed too).
+  {
+    std::vector<std::uint8_t> b = good;
+    const std::uint32_t raw = 0x7FFFFFFF;
+    std::memcpy(b.data() + firstChunk, &raw, 4);
+    std::uint64_t bytes;
+    std::memcpy(&bytes, b.data() + dir + 24, 8);
+    const auto c = static_cast<std::uint32_t>(crc32(0L, b.data() + firstChunk, static_cast<uInt>(bytes)));
+    std::memcpy(b.data() + dir + 32, &c, 4);
+    resealHeader(b, m);
+    const std::string e = parseError(b);
+    EXPECT_NE(e.find("more than a brick can hold"), std::string::npos) << e;
+  }
+  // Truncated anywhere: an error, never a crash.
+  for (std::size_t len = 0; len < good.size(); len += 1 + len / 8) {
+    const std::vector<std::uint8_t> cut(good.begin(), good.begin() + static_cast<std::ptrdiff_t>(len));
+    EXPECT_FALSE(parseError(cut).empty()) << len;
+  }
+}
