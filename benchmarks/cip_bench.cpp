@@ -336,6 +336,20 @@ void displacement(const std::string& fullPath, const std::string& storedPath, co
 
 }  // namespace
 
+/// Bytes per stream of a format 2 file and per patch cell.
+void modelStreams(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  const std::vector<std::uint8_t> bytes((std::istreambuf_iterator<char>(in)), {});
+  const cip::Model m = cip::parseModel(bytes.data(), bytes.size(), path);
+  nlohmann::json j;
+  j["file_bytes"] = bytes.size();
+  j["cells"] = m.cells.size();
+  j["bytes_per_cell"] =
+      static_cast<double>(bytes.size()) / static_cast<double>(std::max<std::size_t>(1, m.cells.size()));
+  for (const auto& [name, n] : cip::modelFileV2Streams(bytes)) j["streams"][name] = n;
+  std::printf("%s\n", j.dump(2).c_str());
+}
+
 int main(int argc, char** argv) {
   CLI::App app{"cip_bench: side-by-side extraction and fidelity measurements (CSV)"};
   app.require_subcommand(1);
@@ -363,6 +377,10 @@ int main(int argc, char** argv) {
   me->add_option("--rows", method.rows,
                  "only the cases whose name matches this regular expression (repeatable: all of them), "
                  "e.g. --rows '32|nucleon'");
+  auto* st =
+      app.add_subcommand("model-streams", "where the bytes of a format 2 model file go (JSON on stdout)");
+  std::string streamsModel;
+  st->add_option("--model", streamsModel, "the .cip file (format 2)")->required();
   auto* di = app.add_subcommand(
       "displacement", "how far a stored model's surface lies from the full-precision model's (codec tuning)");
   std::string fullModel, storedModel, json;
@@ -403,6 +421,7 @@ int main(int argc, char** argv) {
     if (*fi) fidelity(csv, quick);
     if (*me) cipbench::methodTables(method);
     if (*di) displacement(fullModel, storedModel, json, raysPerAxis);
+    if (*st) modelStreams(streamsModel);
     if (*mc) cipbench::meshCodecs(codecs);
     if (*io) cipbench::modelIo(modelIo);
   } catch (const std::exception& e) {

@@ -1509,6 +1509,43 @@ void dropUnusedVertices(Model& m) {
 
 }  // namespace
 
+std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::vector<std::uint8_t>& file) {
+  static const char* const kNames[kNumStreams] = {"sign rows",
+                                                  "cell exceptions",
+                                                  "face pairings",
+                                                  "positions (low bytes)",
+                                                  "positions (high bytes)",
+                                                  "normals",
+                                                  "side coefficients",
+                                                  "central coefficients",
+                                                  "corner coefficients",
+                                                  "zero normal components",
+                                                  "full-precision vertices"};
+  Model m;
+  Layout L;
+  const FileHeader h = readHeader(file.data(), file.size(), "model", m, L);
+  std::vector<std::pair<std::string, std::size_t>> out;
+  for (const char* n : kNames) out.push_back({n, 0});
+  std::size_t framing = 0;
+  for (const DirectoryEntry& e : h.dir) {
+    std::size_t at = e.offset;
+    for (int s = 0; s < kNumStreams; ++s) {
+      std::uint32_t stored;
+      if (at + 8 > e.offset + e.bytes)
+        throw Error("model: damaged model file: a chunk's streams are truncated");
+      std::memcpy(&stored, file.data() + at + 4, 4);
+      if (stored > e.offset + e.bytes - at - 8)
+        throw Error("model: damaged model file: a stream is truncated");
+      out[static_cast<std::size_t>(s)].second += stored;
+      framing += 8;
+      at += 8 + stored;
+    }
+  }
+  out.push_back({"header", h.dir.empty() ? file.size() : h.dir.front().offset});
+  out.push_back({"framing", framing});
+  return out;
+}
+
 Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string& name) {
   Model m;
   Chunks chunks;

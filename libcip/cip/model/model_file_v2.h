@@ -27,6 +27,13 @@ struct ModelFileV2Options {
 };
 
 std::vector<std::uint8_t> serializeModelV2(const Model& model, const ModelFileV2Options& options = {});
+/// Bytes of one kind of data summed over the chunks of a version 2 file, as stored (after compression), in
+/// file order: sign rows, cell exceptions, face pairings, positions (low bytes), positions (high bytes),
+/// normals, side coefficients, central coefficients, corner coefficients, zero normal components,
+/// full-precision vertices; then "header" (header and directory) and "framing" (stream sizes). For reports
+/// of where a file's bytes go.
+std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::vector<std::uint8_t>& file);
+
 /// Parses a version 2 file whose magic and version the caller has checked (`data` is the whole file).
 Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string& name);
 
