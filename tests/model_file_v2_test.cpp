@@ -32,7 +32,8 @@ Model fieldModel(const std::string& name, int n, PatchMethod method) {
 
 std::vector<std::uint8_t> withBrick(const Model& m, int brick) {
   ModelFileOptions o;
-  o.v2.brick = brick;
+  o.v2 = ModelFileV2Options::forMethod(m.method);
+  o.v2->brick = brick;
   return serializeModel(m, o);
 }
 

@@ -94,7 +94,8 @@ std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
 }  // namespace
 
 std::vector<std::uint8_t> serializeModel(const Model& m, const ModelFileOptions& options) {
-  if (options.version == 2) return serializeModelV2(m, options.v2);
+  if (options.version == 2)
+    return serializeModelV2(m, options.v2 ? *options.v2 : ModelFileV2Options::forMethod(m.method));
   if (options.version != 1)
     throw Error("model file version " + std::to_string(options.version) + " cannot be written");
   const std::string source = m.source.substr(0, kMaxSourceBytes);

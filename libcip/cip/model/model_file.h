@@ -2,6 +2,7 @@
 /// @brief The `.cip` model file: versioned little-endian binary, specified in docs/model-format.md.
 #pragma once
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -17,7 +18,8 @@ constexpr std::uint32_t kModelFileVersion = 2;
 /// How to write a model file.
 struct ModelFileOptions {
   std::uint32_t version = kModelFileVersion;  ///< 1 or 2
-  ModelFileV2Options v2;                      ///< quantisation and chunking of version 2
+  /// Quantisation and chunking of version 2; without, ModelFileV2Options::forMethod(model.method).
+  std::optional<ModelFileV2Options> v2;
 };
 
 /// Serialises a model to bytes (the exact file contents).

@@ -979,6 +979,12 @@ void checkOptions(const ModelFileV2Options& q) {
 
 }  // namespace
 
+ModelFileV2Options ModelFileV2Options::forMethod(PatchMethod method) {
+  ModelFileV2Options o;
+  if (method == PatchMethod::Paper) o.normalBits = 10;
+  return o;
+}
+
 std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Options& q) {
   checkOptions(q);
   const std::string name = "model";

@@ -18,12 +18,16 @@ namespace cip {
 struct ModelFileV2Options {
   int brick = 64;              ///< cells per brick edge (8..250): the unit of chunking
   int positionBits = 9;        ///< crossing parameter along its edge: t = q / (2^bits - 1), 4..16
-  int normalBits = 10;         ///< octahedral step of the normal residual: 2^-bits, 6..16
+  int normalBits = 9;          ///< octahedral step of the normal residual: 2^-bits, 6..16
   double sideStep = 0.002;     ///< side coefficients: absolute step near zero ...
   int sideMantissa = 6;        ///< ... and this many bits of relative precision above 2^bits steps
-  double centralStep = 0.004;  ///< central coefficients, likewise
-  int centralMantissa = 5;
-  int zstdLevel = 9;  ///< 1..19
+  double centralStep = 0.008;  ///< central coefficients, likewise
+  int centralMantissa = 4;
+  int zstdLevel = 9;
+
+  /// The defaults for a model built with `method`: the paper's coefficients are recomputed from the stored
+  /// corners and are more sensitive to them, so its normals get one more bit.
+  static ModelFileV2Options forMethod(PatchMethod method);  ///< 1..19
 };
 
 std::vector<std::uint8_t> serializeModelV2(const Model& model, const ModelFileV2Options& options = {});
