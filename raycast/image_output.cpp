@@ -3,6 +3,7 @@
 #include <OpenImageIO/imageio.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstring>
@@ -43,6 +44,10 @@ void writeAtomically(const std::string& path, const std::function<void(const std
   }
 }
 
+/// Rows of the EXR written per call: a multiple of zip's 16-row blocks, and enough blocks per call for
+/// OpenEXR to compress them on several threads, while the interleaved copy stays a few megabytes.
+constexpr int kExrRowsPerChunk = 128;
+
 void writeWithOiio(const std::string& tmp, const std::string& path, const OIIO::ImageSpec& spec,
                    const void* data) {
   auto out = OIIO::ImageOutput::create(tmp);
@@ -60,7 +65,21 @@ float linearToSrgb(float c) {
 
 }  // namespace
 
-void writeExr(const RenderImage& img, const std::string& path) {
+void checkExrCompression(const std::string& compression) {
+  const auto colon = compression.find(':');
+  const std::string name = compression.substr(0, colon);
+  bool ok = name == "none" || name == "rle" || name == "zips" || name == "zip" || name == "piz";
+  if (ok && colon != std::string::npos) {
+    const std::string level = compression.substr(colon + 1);
+    ok = (name == "zips" || name == "zip") && level.size() == 1 && level[0] >= '1' && level[0] <= '9';
+  }
+  if (!ok)
+    throw Error("EXR compression '" + compression +
+                "' is not one of none, rle, zips, zip, piz (zips and zip may add a level 1-9, e.g. zips:1)");
+}
+
+void writeExr(const RenderImage& img, const std::string& path, const std::string& compression) {
+  checkExrCompression(compression);
   constexpr int kFloats = 8, kChannels = 9;
   OIIO::ImageSpec spec(img.width, img.height, kChannels, OIIO::TypeDesc::FLOAT);
   spec.channelnames.assign(std::begin(kExrChannels), std::end(kExrChannels));
@@ -68,18 +87,33 @@ void writeExr(const RenderImage& img, const std::string& path) {
   spec.channelformats.push_back(OIIO::TypeDesc::UINT32);
   spec.alpha_channel = 3;
   spec.z_channel = 4;
-  spec.attribute("compression", "zip");
+  spec.attribute("compression", compression);
   spec.attribute("oiio:ColorSpace", "Linear");
-  // Native per-channel layout: 8 floats then one uint32 per pixel.
+  // Native per-channel layout: 8 floats then one uint32 per pixel, interleaved a chunk of rows at a time.
   constexpr std::size_t stride = kFloats * sizeof(float) + sizeof(std::uint32_t);
-  std::vector<unsigned char> data(img.pixels() * stride);
-  for (std::size_t p = 0; p < img.pixels(); ++p) {
-    float f[kFloats] = {img.rgba[4 * p], img.rgba[4 * p + 1], img.rgba[4 * p + 2],   img.rgba[4 * p + 3],
-                        img.depth[p],    img.normal[3 * p],   img.normal[3 * p + 1], img.normal[3 * p + 2]};
-    std::memcpy(&data[p * stride], f, sizeof f);
-    std::memcpy(&data[p * stride + sizeof f], &img.id[p], sizeof(std::uint32_t));
-  }
-  writeAtomically(path, [&](const std::string& tmp) { writeWithOiio(tmp, path, spec, data.data()); });
+  const std::size_t width = static_cast<std::size_t>(img.width);
+  std::vector<unsigned char> data(std::min(img.height, kExrRowsPerChunk) * width * stride);
+  writeAtomically(path, [&](const std::string& tmp) {
+    auto out = OIIO::ImageOutput::create(tmp);
+    if (!out) throw Error(path + ": cannot create an image writer: " + OIIO::geterror());
+    if (!out->open(tmp, spec)) throw Error(path + ": cannot open for writing: " + out->geterror());
+    for (int y0 = 0; y0 < img.height; y0 += kExrRowsPerChunk) {
+      const int y1 = std::min(img.height, y0 + kExrRowsPerChunk);
+      const std::size_t first = static_cast<std::size_t>(y0) * width;
+      const std::size_t count = static_cast<std::size_t>(y1 - y0) * width;
+      for (std::size_t i = 0; i < count; ++i) {
+        const std::size_t p = first + i;
+        float f[kFloats] = {img.rgba[4 * p],       img.rgba[4 * p + 1],  img.rgba[4 * p + 2],
+                            img.rgba[4 * p + 3],   img.depth[p],         img.normal[3 * p],
+                            img.normal[3 * p + 1], img.normal[3 * p + 2]};
+        std::memcpy(&data[i * stride], f, sizeof f);
+        std::memcpy(&data[i * stride + sizeof f], &img.id[p], sizeof(std::uint32_t));
+      }
+      if (!out->write_scanlines(y0, y1, 0, OIIO::TypeDesc::UNKNOWN, data.data()))
+        throw Error(path + ": write failed: " + out->geterror());
+    }
+    if (!out->close()) throw Error(path + ": write failed: " + out->geterror());
+  });
 }
 
 void writePng(const RenderImage& img, const std::string& path) {

@@ -11,11 +11,19 @@
 
 namespace cip::raycast {
 
+struct PatchSceneOptions {
+  /// Hits carry the mean curvature (from the patch's Hessian); without it they carry NaN and only the
+  /// gradient is computed. Only the curvature shading mode uses it.
+  bool curvature = true;
+  /// Threads for building the scene (patches and BVH); 0 = all.
+  int threads = 0;
+};
+
 class PatchScene : public RenderScene {
  public:
   /// Builds the scene (patches in parallel, then the Embree BVH over the cell boxes). `model` must outlive
   /// the scene.
-  explicit PatchScene(const Model& model);
+  explicit PatchScene(const Model& model, const PatchSceneOptions& options = {});
   ~PatchScene() override;
   PatchScene(const PatchScene&) = delete;
   PatchScene& operator=(const PatchScene&) = delete;
@@ -27,7 +35,8 @@ class PatchScene : public RenderScene {
   std::size_t primitives() const override { return patches_.size(); }
 
   /// Surface data at the hit of cell `cell` at ray parameter t: position, normal (world gradient direction)
-  /// and mean curvature in world units from the exact gradient and Hessian.
+  /// and, if the scene was built with curvature, mean curvature in world units from the exact gradient and
+  /// Hessian.
   SurfaceHit surfaceAt(const Ray& ray, double t, std::uint32_t cell) const;
 
   // Used by the Embree callbacks.
@@ -37,7 +46,10 @@ class PatchScene : public RenderScene {
   Vec3 worldToLocal(const Vec3& world, std::uint32_t cell) const;
 
  private:
+  void build();  ///< patches, bounds and BVH (run inside the options' thread arena)
+
   const Model& model_;
+  bool curvature_ = true;
   std::vector<CornerPatch> patches_;
   Box bounds_;
   EmbreeDevice device_;
