@@ -102,7 +102,7 @@ int runApp(const AppOptions& opt) {
     image = cip::raycast::render(*scene, camera, render, &stats);
   }
   const auto tWrite = Clock::now();
-  writeExr(image, opt.output, opt.compression);
+  writeExr(image, opt.output, opt.compression, opt.threads);
   if (!opt.png.empty()) writePng(image, opt.png);
   const double writeSeconds = secondsSince(tWrite);
 
