@@ -239,13 +239,24 @@ int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree +
       const Term& term = terms_[i];
       if (term.degree != m) continue;
       c[0] = term.coefficient;
+      if (m == 0) {
+        out[0] += c[0];
+        ends0[i] = ends1[i] = c[0];
+        continue;
+      }
+      // All factors but the last into c; the last one's product goes straight into `out` (storing it in c and
+      // reading it back stalled on store forwarding), with the same operations as multiplyLinear.
       int k = 0;
       for (int j = 0; j < term.count; ++j)
-        for (int p = 0; p < term.power[j]; ++p)
+        for (int p = j + 1 < term.count ? 0 : 1; p < term.power[j]; ++p)
           multiplyLinear(c, k++, la[term.factor[j]], lb[term.factor[j]]);
-      for (k = 0; k <= m; ++k) out[k] += c[k];
-      ends0[i] = c[0];
-      ends1[i] = c[m];
+      const int last = term.factor[term.count - 1];
+      const double l0 = la[last], l1 = lb[last], inv = 1.0 / m;
+      ends0[i] = l0 * c[0];
+      ends1[i] = l1 * c[k];
+      out[m] += ends1[i];
+      for (int q = k; q >= 1; --q) out[q] += (l0 * c[q] * (m - q) + l1 * c[q - 1] * q) * inv;
+      out[0] += ends0[i];
     }
     if (m >= n) break;
     elevate(out, m);
