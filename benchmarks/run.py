@@ -160,55 +160,98 @@ def vtk_cases(extraction):
 # ---------------------------------------------------------------------------------------------------------------
 # Rendering
 
+def raycast_row(cmd, stats, case, renderer, size, spp, threads):
+    """Runs raycast (whole process timed here) and turns its --stats-json into a row of the rendering table."""
+    wall = timed(cmd + ["--stats-json", stats])
+    s = json.load(open(stats))
+    sec = s["seconds"]
+    rays = s["rays"]["primary"] + s["rays"]["shadow"]
+    return s, {"case": case, "renderer": renderer, "size": size, "spp": spp, "threads": s["threads"],
+               "process_seconds": wall, "startup_seconds": sec.get("startup", ""),
+               "scene_seconds": sec["scene_build"], "seconds": sec["render"],
+               "write_seconds": sec.get("write_image", ""),
+               "mrays_per_s": rays / sec["render"] * 1e-6,
+               "mrays_per_s_per_core": rays / sec["render"] / s["threads"] * 1e-6,
+               "primitives": s["primitives"], "hit_pixels": s["hit_pixels"]}
+
+
 def render_section(build, out, quick, shared):
+    """raycast on the model against raycast --mesh on the marching-cubes mesh of the same cells (and vdb_render on
+    VDB inputs), same camera and size; each case at all threads and at one (scaling), and in the full run also at
+    4096x4096 and at 16 samples per pixel. Returns the table's rows, a ratio table and the preview images."""
     extract = os.path.join(build, "extract", "extract")
     raycast = os.path.join(build, "raycast", "raycast")
     size = "256x256" if quick else "1024x1024"
+    cores = os.cpu_count()
     cases = [("sphere-64", ["sphere", "--resolution", "64"])]
     if not quick:
-        cases += [("sphere-128", ["sphere", "--resolution", "128"]), ("gyroid-64", ["gyroid", "--resolution", "64"])]
+        cases += [("sphere-128", ["sphere", "--resolution", "128"]), ("gyroid-64", ["gyroid", "--resolution", "64"]),
+                  ("gyroid-128", ["gyroid", "--resolution", "128"])]
     vdb = os.path.join(shared, "vdb", "sphere.vdb")
     if os.path.exists(vdb):
         cases.append(("sphere.vdb", [vdb]))
     if not quick and os.path.exists(os.path.join(shared, "tooth.nhdr")):
         cases.append(("tooth", [os.path.join(shared, "tooth.nhdr"), "--iso", "120"]))
-    rows, images = [], []
+    if not quick and os.path.exists(os.path.join(shared, "headsq.nhdr")):
+        cases.append(("headsq-1150", [os.path.join(shared, "headsq.nhdr"), "--iso", "1150"]))
+    rows, ratio_rows, images = [], [], []
     for name, inp in cases:
         model = os.path.join(out, name + ".cip")
         mesh = os.path.join(out, name + "-mc.ply")
         sh([extract] + inp + ["-o", model, "--mc-mesh", mesh, "--quiet"])
-        stats = os.path.join(out, name + "-raycast.json")
         png = os.path.join(out, name + "-patches.png")
-        sh([raycast, model, "-o", os.path.join(out, name + ".exr"), "--png", png, "--size", size, "--quiet",
-            "--stats-json", stats])
-        s = json.load(open(stats))
+        s, row = raycast_row([raycast, model, "-o", os.path.join(out, name + ".exr"), "--png", png, "--size", size,
+                              "--quiet"], os.path.join(out, name + "-raycast.json"), name, "raycast-patches", size, 1,
+                             0)
+        rows.append(row)
         cam = s["camera"]
-        rays = s["rays"]["primary"] + s["rays"]["shadow"]
-        rows.append({"case": name, "renderer": "raycast-patches", "size": size, "seconds": s["seconds"]["render"],
-                     "scene_seconds": s["seconds"]["scene_build"], "mrays_per_s": rays / s["seconds"]["render"] * 1e-6,
-                     "primitives": s["primitives"], "hit_pixels": s["hit_pixels"]})
-        camera_args = ["--eye", ",".join(map(str, cam["eye"])), "--look", ",".join(map(str, cam["look"])),
-                       "--up", ",".join(map(str, cam["up"])), "--fov", str(cam["fov"])]
-        mstats = os.path.join(out, name + "-raycast-mesh.json")
+        camera_args = ["--eye", ",".join(map(repr, cam["eye"])), "--look", ",".join(map(repr, cam["look"])),
+                       "--up", ",".join(map(repr, cam["up"])), "--fov", repr(cam["fov"])]
         mpng = os.path.join(out, name + "-mc.png")
-        sh([raycast, "--mesh", mesh, "-o", os.path.join(out, name + "-mc.exr"), "--png", mpng, "--size", size,
-            "--quiet", "--stats-json", mstats] + camera_args)
-        m = json.load(open(mstats))
-        mrays = m["rays"]["primary"] + m["rays"]["shadow"]
-        rows.append({"case": name, "renderer": "embree-mc-mesh", "size": size, "seconds": m["seconds"]["render"],
-                     "scene_seconds": m["seconds"]["scene_build"], "mrays_per_s": mrays / m["seconds"]["render"] * 1e-6,
-                     "primitives": m["primitives"], "hit_pixels": m["hit_pixels"]})
+        _, mrow = raycast_row([raycast, "--mesh", mesh, "-o", os.path.join(out, name + "-mc.exr"), "--png", mpng,
+                               "--size", size, "--quiet"] + camera_args, os.path.join(out, name + "-raycast-mesh.json"),
+                              name, "embree-mc-mesh", size, 1, 0)
+        rows.append(mrow)
         images.append((name, png, mpng))
+        # Scaling: the same model and view on one thread.
+        _, one = raycast_row([raycast, model, "-o", os.path.join(out, name + "-1t.exr"), "--size", size, "--quiet",
+                              "--threads", "1"] + camera_args, os.path.join(out, name + "-raycast-1t.json"), name,
+                             "raycast-patches", size, 1, 1)
+        rows.append(one)
+        ratio = {"case": name, "size": size, "patches_over_mesh_process": row["process_seconds"] / mrow["process_seconds"],
+                 "patches_over_mesh_render": row["seconds"] / mrow["seconds"],
+                 "startup_share": row["startup_seconds"] / row["process_seconds"] if row["startup_seconds"] != "" else "",
+                 "render_speedup_1_to_%d" % cores: one["seconds"] / row["seconds"], "vdb_render_over_patches": ""}
         if name.endswith(".vdb") and shutil.which("vdb_render"):
             w, h = size.split("x")
             vout = os.path.join(out, name + "-vdb_render.exr")
             t = timed(["vdb_render", inp[0], vout, "-res", "%sx%s" % (w, h), "-translate",
                        ",".join(map(str, cam["eye"])), "-lookat", ",".join(map(str, cam["look"])), "-up",
                        ",".join(map(str, cam["up"])), "-fov", str(cam["fov"]), "-shader", "diffuse", "-cpus", "0"])
-            rows.append({"case": name, "renderer": "vdb_render (whole process)", "size": size, "seconds": t,
-                         "scene_seconds": "", "mrays_per_s": int(w) * int(h) / t * 1e-6, "primitives": "",
+            rows.append({"case": name, "renderer": "vdb_render (whole process)", "size": size, "spp": 1,
+                         "threads": cores, "process_seconds": t, "startup_seconds": "", "scene_seconds": "",
+                         "seconds": "", "write_seconds": "", "mrays_per_s": int(w) * int(h) / t * 1e-6,
+                         "mrays_per_s_per_core": int(w) * int(h) / t / cores * 1e-6, "primitives": "",
                          "hit_pixels": ""})
-    return rows, images
+            ratio["vdb_render_over_patches"] = t / row["process_seconds"]
+        ratio_rows.append(ratio)
+        if not quick and name == "sphere.vdb":
+            # Large images and antialiasing: 4096x4096 at one sample, 1024x1024 at 16.
+            for big, spp in (("4096x4096", 1), (size, 16)):
+                tag = "%s-%s-spp%d" % (name, big, spp)
+                _, r = raycast_row([raycast, model, "-o", os.path.join(out, tag + ".exr"), "--size", big, "--spp",
+                                    str(spp), "--quiet"] + camera_args, os.path.join(out, tag + ".json"), name,
+                                   "raycast-patches", big, spp, 0)
+                _, m = raycast_row([raycast, "--mesh", mesh, "-o", os.path.join(out, tag + "-mc.exr"), "--size", big,
+                                    "--spp", str(spp), "--quiet"] + camera_args, os.path.join(out, tag + "-mc.json"),
+                                   name, "embree-mc-mesh", big, spp, 0)
+                rows += [r, m]
+                ratio_rows.append({"case": name + " spp %d" % spp, "size": big,
+                                   "patches_over_mesh_process": r["process_seconds"] / m["process_seconds"],
+                                   "patches_over_mesh_render": r["seconds"] / m["seconds"],
+                                   "startup_share": r["startup_seconds"] / r["process_seconds"],
+                                   "render_speedup_1_to_%d" % cores: "", "vdb_render_over_patches": ""})
+    return rows, ratio_rows, images
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -437,7 +480,7 @@ def plot(fidelity, extraction, render_rows, out):
         ax.set_ylim(bottom=0)
         ax.legend(fontsize=7)
         finish(fig, "extraction-per-cell.png")
-    sph = [r for r in render_rows if r["case"].startswith("sphere-")]
+    sph = [r for r in render_rows if r["case"].startswith("sphere-") and r["threads"] != 1 and r["spp"] == 1]
     if len({r["case"] for r in sph}) > 1:
         fig, ax = plt.subplots(figsize=(6, 4))
         for rend in sorted({r["renderer"] for r in sph}):
@@ -556,8 +599,9 @@ def main():
     sh([bench, "fidelity", "--csv", fi_csv] + quick)
     fidelity = read_csv(fi_csv)
 
-    render_rows, images = render_section(args.build_dir, out, args.quick, args.shared_data)
+    render_rows, render_ratios, images = render_section(args.build_dir, out, args.quick, args.shared_data)
     write_csv(os.path.join(out, "rendering.csv"), render_rows, list(render_rows[0].keys()))
+    write_csv(os.path.join(out, "rendering-ratios.csv"), render_ratios, list(render_ratios[0].keys()))
     ratio_rows = ratios(extraction)
     target_rows = speed_targets(extraction)
     if target_rows:
@@ -663,10 +707,21 @@ def main():
                 dict({"iso": "%g"}, **{k: "%.0f" for k in io_rows[0] if k.endswith("_mb_s")},
                      model_read_over_ply_read_speed="%.2f")), "",
           "## Rendering", "", "raycast on the model (exact ray–patch intersection) against Embree triangles on the "
-          "marching-cubes mesh (`raycast --mesh`), same camera and image size; vdb_render (OpenVDB's level-set ray "
-          "tracer) on the VDB level set with the same camera, timed as a whole process (it reports no render time).",
-          "", table(render_rows, list(render_rows[0].keys()), {"seconds": "%.3f", "scene_seconds": "%.3f",
-                                                               "mrays_per_s": "%.2f"}), ""]
+          "marching-cubes mesh of the same cells (`raycast --mesh`), same camera and image size; vdb_render (OpenVDB's "
+          "level-set ray tracer) on the VDB level set with the same camera, timed as a whole process (it reports no "
+          "render time). process_seconds: the whole raycast process, timed from here (one run); startup_seconds, "
+          "scene_seconds (reading plus building), seconds (rendering) and write_seconds (EXR and PNG): raycast's own "
+          "`--stats-json` split. mrays_per_s_per_core: rays per second of rendering divided by the threads used; "
+          "each case also runs on one thread (threads = 1) for the scaling. docs/performance.md (\"Rendering\") has "
+          "paired measurements; the single runs here move by 10-30 % on a shared machine.",
+          "", table(render_rows, list(render_rows[0].keys()),
+                    {"process_seconds": "%.3f", "startup_seconds": "%.3f", "seconds": "%.3f", "scene_seconds": "%.3f",
+                     "write_seconds": "%.3f", "mrays_per_s": "%.2f", "mrays_per_s_per_core": "%.2f"}), "",
+          "Ratios (whole process and render alone, patches over mesh; target: process at most 1.5; start-up share of "
+          "the patch run's process, target at most 0.2; render speed-up from one thread to all; vdb_render's whole "
+          "process over the patch run's, target at least 2):", "",
+          table(render_ratios, list(render_ratios[0].keys()),
+                {k: "%.2f" for k in render_ratios[0].keys() if k not in ("case", "size")}), ""]
     for name, a, b in images:
         md += ["%s: patches | marching-cubes mesh" % name, "", "![%s patches](%s) ![%s mc](%s)" % (
             name, rel(a), name, rel(b)), ""]

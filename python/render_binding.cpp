@@ -57,7 +57,11 @@ py::dict render(const std::shared_ptr<Model>& model, const py::object& eye, cons
   raycast::RenderImage image;
   runCancellable(
       [&](const ReportProgress& report) {
-        const raycast::PatchScene scene(*model);
+        raycast::PatchSceneOptions sceneOptions;
+        sceneOptions.curvature =
+            options.shading.mode == raycast::ShadingMode::Curvature;  // Hessian only then
+        sceneOptions.threads = threads;
+        const raycast::PatchScene scene(*model, sceneOptions);
         options.progress = report;
         image = raycast::render(scene, raycast::makeCamera(camera, scene.bounds(), width, height), options);
       },

@@ -6,16 +6,18 @@
 #include <string>
 #include <vector>
 
+#include "image_output.h"
 #include "shading.h"
 
 namespace cip::raycast {
 
 struct AppOptions {
-  std::string model;             ///< .cip model file (unless mesh is set)
-  std::string mesh;              ///< PLY mesh file (--mesh)
-  std::string output;            ///< EXR file (-o)
-  std::string png;               ///< optional PNG preview
-  std::string size = "800x600";  ///< WxH
+  std::string model;                                 ///< .cip model file (unless mesh is set)
+  std::string mesh;                                  ///< PLY mesh file (--mesh)
+  std::string output;                                ///< EXR file (-o)
+  std::string png;                                   ///< optional PNG preview
+  std::string compression = kDefaultExrCompression;  ///< EXR compression (--compression)
+  std::string size = "800x600";                      ///< WxH
   int spp = 1;
   std::vector<double> eye, look, up;  ///< empty or 3 numbers (world)
   double fov = 35;

@@ -1,10 +1,12 @@
 #include "mesh_scene.h"
 
+#include <tbb/task_arena.h>
+
 #include "cip/core/error.h"
 
 namespace cip::raycast {
 
-MeshScene::MeshScene(const TriangleMesh& mesh) : mesh_(mesh) {
+MeshScene::MeshScene(const TriangleMesh& mesh, int threads) : mesh_(mesh), device_(threads) {
   validateMesh(mesh, "mesh");
   bounds_.lo = Vec3::Constant(std::numeric_limits<double>::infinity());
   bounds_.hi = -bounds_.lo;
@@ -37,7 +39,8 @@ MeshScene::MeshScene(const TriangleMesh& mesh) : mesh_(mesh) {
     rtcAttachGeometry(scene_, geom);
     rtcReleaseGeometry(geom);
   }
-  rtcCommitScene(scene_);
+  tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
+  arena.execute([&] { rtcCommitScene(scene_); });
   device_.check("building the mesh scene");
 }
 

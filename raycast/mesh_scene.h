@@ -10,8 +10,8 @@ namespace cip::raycast {
 class MeshScene : public RenderScene {
  public:
   /// Copies the positions to float; `mesh` must outlive the scene (normals and recorded cells are read at
-  /// hits).
-  explicit MeshScene(const TriangleMesh& mesh);
+  /// hits). `threads` > 0 bounds the threads of the BVH build (0 = all).
+  explicit MeshScene(const TriangleMesh& mesh, int threads = 0);
   ~MeshScene() override;
   MeshScene(const MeshScene&) = delete;
   MeshScene& operator=(const MeshScene&) = delete;

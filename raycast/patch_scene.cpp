@@ -1,6 +1,6 @@
 #include "patch_scene.h"
 
-#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <cmath>
 
@@ -50,11 +50,16 @@ void patchBounds(const RTCBoundsFunctionArguments* args) {
 /// First root of the cell's patch on the context's double ray within [tNear, tFar] (the caller's interval,
 /// not the closest hit so far: each cell's answer is then a function of the ray and the cell alone, whatever
 /// order Embree visits the cells in), or nothing.
+/// A cell whose padded box the ray enters after the closest hit so far is skipped: every root in it would lie
+/// beyond that hit, so skipping it changes no answer.
 std::optional<Root> cellRoot(const PatchRayContext& ctx, std::uint32_t cell) {
   const PatchScene& s = *ctx.scene;
   const Vec3 origin = s.worldToLocal(ctx.ray.origin, cell);
   const Vec3 direction =
       ctx.ray.direction.cwiseQuotient(s.model().geometry.spacing);  // same t as the world ray
+  double t0 = 0, t1 = 0;
+  if (!clipRayToCell(origin, direction, ctx.tNear, ctx.tFar, t0, t1) || (ctx.found && t0 > ctx.bestT))
+    return std::nullopt;
   RootSearchOptions options;
   options.crossingsOnly = true;  // the surface separates value > isovalue from value < isovalue
   return intersectRayPatch(s.patch(cell), origin, direction, ctx.tNear, ctx.tFar, options);
@@ -102,8 +107,14 @@ double meanCurvature(const Vec3& g, const Mat3& h) {
   return (g2 * h.trace() - g.dot(h * g)) / (2.0 * g2 * std::sqrt(g2));
 }
 
-PatchScene::PatchScene(const Model& model) : model_(model), patches_(model.cells.size()) {
-  tbb::parallel_for(std::size_t(0), patches_.size(), [&](std::size_t c) { patches_[c] = model.patch(c); });
+PatchScene::PatchScene(const Model& model, const PatchSceneOptions& options)
+    : model_(model), curvature_(options.curvature), device_(options.threads) {
+  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
+  arena.execute([&] { build(); });
+}
+
+void PatchScene::build() {
+  const Model& model = model_;
   bounds_.lo = Vec3::Constant(std::numeric_limits<double>::infinity());
   bounds_.hi = -bounds_.lo;
   for (std::size_t c = 0; c < model.cells.size(); ++c) {
@@ -116,9 +127,9 @@ PatchScene::PatchScene(const Model& model) : model_(model), patches_(model.cells
   scene_ = rtcNewScene(device_.get());
   rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);
-  if (!patches_.empty()) {
+  if (!model.cells.empty()) {
     RTCGeometry geom = rtcNewGeometry(device_.get(), RTC_GEOMETRY_TYPE_USER);
-    rtcSetGeometryUserPrimitiveCount(geom, static_cast<unsigned>(patches_.size()));
+    rtcSetGeometryUserPrimitiveCount(geom, static_cast<unsigned>(model.cells.size()));
     rtcSetGeometryUserData(geom, this);
     rtcSetGeometryBoundsFunction(geom, patchBounds, nullptr);
     rtcSetGeometryIntersectFunction(geom, patchIntersect);
@@ -149,14 +160,14 @@ SurfaceHit PatchScene::surfaceAt(const Ray& ray, double t, std::uint32_t cell) c
   hit.cellIndex = model_.cells[cell].index;
   const Vec3 local =
       worldToLocal(ray.origin, cell) + t * ray.direction.cwiseQuotient(model_.geometry.spacing);
-  const PatchDerivatives d = patches_[cell].derivatives(local);
+  const CornerPatch p = patch(cell);
+  const PatchDerivatives d = curvature_ ? p.derivatives(local) : p.valueAndGradient(local);
   // local = (world - origin) / spacing - cell: d/dworld = diag(1 / spacing) d/dlocal.
   const Vec3 inv = model_.geometry.spacing.cwiseInverse();
   const Vec3 g = d.gradient.cwiseProduct(inv);
-  const Mat3 h = inv.asDiagonal() * d.hessian * inv.asDiagonal();
   const double gn = g.norm();
   hit.normal = gn > 0 ? Vec3(g / gn) : Vec3(-ray.direction);
-  hit.meanCurvature = meanCurvature(g, h);
+  if (curvature_) hit.meanCurvature = meanCurvature(g, inv.asDiagonal() * d.hessian * inv.asDiagonal());
   return hit;
 }
 

@@ -11,11 +11,19 @@
 
 namespace cip::raycast {
 
+struct PatchSceneOptions {
+  /// Hits carry the mean curvature (from the patch's Hessian); without it they carry NaN and only the
+  /// gradient is computed. Only the curvature shading mode uses it.
+  bool curvature = true;
+  /// Threads for building the scene (patches and BVH); 0 = all.
+  int threads = 0;
+};
+
 class PatchScene : public RenderScene {
  public:
-  /// Builds the scene (patches in parallel, then the Embree BVH over the cell boxes). `model` must outlive
-  /// the scene.
-  explicit PatchScene(const Model& model);
+  /// Builds the scene (the Embree BVH over the cell boxes, in parallel; patches are assembled per query).
+  /// `model` must outlive the scene.
+  explicit PatchScene(const Model& model, const PatchSceneOptions& options = {});
   ~PatchScene() override;
   PatchScene(const PatchScene&) = delete;
   PatchScene& operator=(const PatchScene&) = delete;
@@ -24,21 +32,26 @@ class PatchScene : public RenderScene {
   bool occluded(const Ray& ray, double tNear, double tFar) const override;
   /// World box of the non-empty cells.
   Box bounds() const override { return bounds_; }
-  std::size_t primitives() const override { return patches_.size(); }
+  std::size_t primitives() const override { return model_.cells.size(); }
 
   /// Surface data at the hit of cell `cell` at ray parameter t: position, normal (world gradient direction)
-  /// and mean curvature in world units from the exact gradient and Hessian.
+  /// and, if the scene was built with curvature, mean curvature in world units from the exact gradient and
+  /// Hessian.
   SurfaceHit surfaceAt(const Ray& ray, double t, std::uint32_t cell) const;
 
   // Used by the Embree callbacks.
   const Model& model() const { return model_; }
-  const CornerPatch& patch(std::uint32_t cell) const { return patches_[cell]; }
+  /// The cell's patch, assembled from the model when asked for (a copy of the corners; cheaper than faulting
+  /// in a table of ~0.8 KB per cell, which was 7 % of a 1024x1024 render's whole process).
+  CornerPatch patch(std::uint32_t cell) const { return model_.patch(cell); }
   /// Cell-local coordinates of a world point in cell `cell`.
   Vec3 worldToLocal(const Vec3& world, std::uint32_t cell) const;
 
  private:
+  void build();  ///< patches, bounds and BVH (run inside the options' thread arena)
+
   const Model& model_;
-  std::vector<CornerPatch> patches_;
+  bool curvature_ = true;
   Box bounds_;
   EmbreeDevice device_;
   RTCScene scene_ = nullptr;

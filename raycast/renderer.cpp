@@ -11,6 +11,7 @@
 #include <mutex>
 
 #include "cip/core/error.h"
+#include "cip/core/huge_pages.h"
 
 namespace cip::raycast {
 
@@ -48,11 +49,16 @@ RenderImage blankImage(const Camera& camera) {
   img.width = camera.width();
   img.height = camera.height();
   const std::size_t n = img.pixels();
-  img.rgba.assign(4 * n, 0.0f);
-  img.depth.assign(n, std::numeric_limits<float>::infinity());
-  img.normal.assign(3 * n, 0.0f);
-  img.id.assign(n, kNoHitId);
-  img.curvature.assign(n, std::numeric_limits<float>::quiet_NaN());
+  // Tens of megabytes at 1024x1024 and more: 2 MiB pages take 512 times fewer page faults to fill.
+  auto fill = [n](auto& channel, std::size_t perPixel, auto value) {
+    reserveHuge(channel, perPixel * n);
+    channel.assign(perPixel * n, value);
+  };
+  fill(img.rgba, 4, 0.0f);
+  fill(img.depth, 1, std::numeric_limits<float>::infinity());
+  fill(img.normal, 3, 0.0f);
+  fill(img.id, 1, kNoHitId);
+  fill(img.curvature, 1, std::numeric_limits<float>::quiet_NaN());
   return img;
 }
 
@@ -181,7 +187,9 @@ RenderImage render(const RenderScene& scene, const Camera& camera, const RenderO
   if (options.samplesPerPixel < 1) throw Error("samples per pixel must be at least 1");
   const auto start = std::chrono::steady_clock::now();
   RenderImage img = blankImage(camera);
-  std::vector<float> light(img.pixels(), 0.0f);  // curvature mode: mean lighting factor over hit samples
+  std::vector<float> light;  // curvature mode: mean lighting factor over hit samples
+  reserveHuge(light, img.pixels());
+  light.assign(img.pixels(), 0.0f);
 
   TileRenderer tiles(scene, camera, options, img, light);
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);

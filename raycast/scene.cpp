@@ -7,7 +7,8 @@
 
 namespace cip::raycast {
 
-EmbreeDevice::EmbreeDevice() : device_(rtcNewDevice(nullptr)) {
+EmbreeDevice::EmbreeDevice(int threads)
+    : device_(rtcNewDevice(threads > 0 ? ("threads=" + std::to_string(threads)).c_str() : nullptr)) {
   if (!device_)
     throw Error("cannot create an Embree device (error " + std::to_string(rtcGetDeviceError(nullptr)) + ")");
 }

@@ -45,7 +45,8 @@ class RenderScene {
 /// An Embree device with error checking; one per scene.
 class EmbreeDevice {
  public:
-  EmbreeDevice();
+  /// `threads` > 0 bounds the threads Embree builds with (its "threads" setting); 0 = Embree's default (all).
+  explicit EmbreeDevice(int threads = 0);
   ~EmbreeDevice();
   EmbreeDevice(const EmbreeDevice&) = delete;
   EmbreeDevice& operator=(const EmbreeDevice&) = delete;

@@ -6,15 +6,18 @@ namespace cip {
 
 namespace {
 
-/// Forward-mode accumulation of value, gradient and Hessian through a product of linear factors.
+/// Forward-mode accumulation of value, gradient and (if kHessian) Hessian through a product of linear
+/// factors. The value and gradient do not depend on the Hessian, so they are the same either way.
+template <bool kHessian>
 struct Jet {
   double v = 1;
   Vec3 g = Vec3::Zero();
   Mat3 h = Mat3::Zero();
   // this *= (a . x + value) where `value` is the factor's value at x and `a` its gradient.
   void multiply(double value, const Vec3& a) {
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) h(r, c) = h(r, c) * value + g[r] * a[c] + a[r] * g[c];
+    if constexpr (kHessian)
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) h(r, c) = h(r, c) * value + g[r] * a[c] + a[r] * g[c];
     for (int r = 0; r < 3; ++r) g[r] = g[r] * value + v * a[r];
     v *= value;
   }
@@ -23,12 +26,14 @@ struct Jet {
   // products; written with Eigen expressions, those took 86 % of the continuity tests under the sanitizers.
   void multiplyFaceSquare(double b, int k, double slope) {
     const double q = b * b, d = 2 * b * slope;
-    h *= q;
-    for (int r = 0; r < 3; ++r) {
-      h(r, k) += d * g[r];
-      h(k, r) += d * g[r];
+    if constexpr (kHessian) {
+      h *= q;
+      for (int r = 0; r < 3; ++r) {
+        h(r, k) += d * g[r];
+        h(k, r) += d * g[r];
+      }
+      h(k, k) += 2 * v;
     }
-    h(k, k) += 2 * v;
     g *= q;
     g[k] += d * v;
     v *= q;
@@ -91,22 +96,35 @@ double CornerPatch::value(const Vec3& x) const {
   return central != 0 ? v + central * centralBasis(x) : v;
 }
 
-PatchDerivatives CornerPatch::derivatives(const Vec3& x) const {
-  std::array<PatchTerm, kMaxTerms> ts;
-  int n = terms(ts);
+namespace {
+
+template <bool kHessian>
+PatchDerivatives derivativesOf(const CornerPatch& patch, const Vec3& x) {
+  std::array<PatchTerm, CornerPatch::kMaxTerms> ts;
+  int n = patch.terms(ts);
   PatchDerivatives out;
   for (int i = 0; i < n; ++i) {
-    Jet j;
-    if (ts[i].corner >= 0) j.multiply(cornerPlane(ts[i].corner, x), normal[ts[i].corner]);
+    Jet<kHessian> j;
+    if (ts[i].corner >= 0) j.multiply(patch.cornerPlane(ts[i].corner, x), patch.normal[ts[i].corner]);
     for (int f = 0; f < 6; ++f) {
       if (!((ts[i].faceSquares >> f) & 1)) continue;
-      j.multiplyFaceSquare(facePlane(f, x), f / 2, facePlaneGradient(f)[f / 2]);
+      j.multiplyFaceSquare(CornerPatch::facePlane(f, x), f / 2, CornerPatch::facePlaneGradient(f)[f / 2]);
     }
     out.value += ts[i].coefficient * j.v;
     out.gradient += ts[i].coefficient * j.g;
-    out.hessian += ts[i].coefficient * j.h;
+    if constexpr (kHessian) out.hessian += ts[i].coefficient * j.h;
   }
   return out;
+}
+
+}  // namespace
+
+PatchDerivatives CornerPatch::derivatives(const Vec3& x) const {
+  return derivativesOf<true>(*this, x);
+}
+
+PatchDerivatives CornerPatch::valueAndGradient(const Vec3& x) const {
+  return derivativesOf<false>(*this, x);
 }
 
 int CornerPatch::degree() const {

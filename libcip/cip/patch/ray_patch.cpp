@@ -5,6 +5,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include "cip/topology/cube_topology.h"
+
 namespace cip {
 
 namespace {
@@ -47,15 +49,17 @@ int signChanges(const Coefficients& b, int n) {
 
 /// The single root of p in [lo, hi], where p(lo) and p(hi) are non-zero with opposite signs: Newton steps
 /// kept inside the shrinking bracket, bisection whenever a step would leave it or converge slower than
-/// bisection.
+/// bisection. Stops when |p(x)| is within p's rounding bound at x (its sign there is noise, so further steps
+/// would only wander within the noise; one last Newton step is taken when it stays inside the bracket), when
+/// the bracket or the step is below `tolerance`, or after maxIterations.
 double refineBracketed(const RayPolynomial& p, double lo, double hi, double valueLo, double tolerance,
                        int maxIterations) {
   // Orient so that g = s * p is negative at lo and positive at hi.
   const double s = valueLo < 0 ? 1.0 : -1.0;
   double x = 0.5 * (lo + hi);
   double dxOld = hi - lo, dx = dxOld;
-  double g = 0, dg = 0;
-  p.valueAndDerivative(x, g, dg);
+  double g = 0, dg = 0, bound = 0;
+  p.valueDerivativeAndBound(x, g, dg, bound);
   g *= s;
   dg *= s;
   for (int it = 0; it < maxIterations; ++it) {
@@ -64,6 +68,10 @@ double refineBracketed(const RayPolynomial& p, double lo, double hi, double valu
       lo = x;
     } else {
       hi = x;
+    }
+    if (std::abs(g) <= bound) {
+      const double newton = dg != 0 ? x - g / dg : x;
+      return newton > lo && newton < hi ? newton : x;
     }
     const bool newtonLeaves = ((x - hi) * dg - g) * ((x - lo) * dg - g) > 0;
     const bool newtonSlow = std::abs(2.0 * g) > std::abs(dxOld * dg);
@@ -81,7 +89,7 @@ double refineBracketed(const RayPolynomial& p, double lo, double hi, double valu
       }
     }
     if (hi - lo <= tolerance || std::abs(dx) <= 0.5 * tolerance) break;
-    p.valueAndDerivative(x, g, dg);
+    p.valueDerivativeAndBound(x, g, dg, bound);
     g *= s;
     dg *= s;
   }
@@ -101,8 +109,10 @@ int RayPolynomial::addFactor(const LinearFactor& factor) {
 
 int RayPolynomial::addTerm(double coefficient) {
   if (numTerms_ >= kMaxTerms) throw std::length_error("RayPolynomial: too many terms");
-  terms_[numTerms_] = Term{};
-  terms_[numTerms_].coefficient = coefficient;
+  Term& term = terms_[numTerms_];
+  term.coefficient = coefficient;
+  term.count = 0;
+  term.degree = 0;
   return numTerms_++;
 }
 
@@ -116,12 +126,7 @@ void RayPolynomial::multiplyTerm(int term, int factor, int power) {
   t.power[t.count] = static_cast<std::uint8_t>(power);
   ++t.count;
   t.degree += power;
-}
-
-int RayPolynomial::degree() const {
-  int d = 0;
-  for (int i = 0; i < numTerms_; ++i) d = std::max(d, terms_[i].degree);
-  return d;
+  degree_ = std::max(degree_, t.degree);
 }
 
 double RayPolynomial::value(double t) const {
@@ -182,24 +187,87 @@ double RayPolynomial::roundingBound(double t) const {
   return 4.0 * (spread + (degree() + numTerms_ + 2) * kEps * size);
 }
 
+void RayPolynomial::valueDerivativeAndBound(double t, double& value, double& derivative,
+                                            double& bound) const {
+  // valueAndDerivative and roundingBound fused: the same operations in the same order.
+  std::array<double, kMaxFactors> l, mag, pert;
+  for (int f = 0; f < numFactors_; ++f) {
+    l[f] = factors_[f](t);
+    mag[f] = std::abs(l[f]);
+    pert[f] = mag[f] + 2 * kEps * (std::abs(factors_[f].offset) + std::abs(factors_[f].slope * t));
+  }
+  value = 0;
+  derivative = 0;
+  double spread = 0, size = 0;
+  for (int i = 0; i < numTerms_; ++i) {
+    const Term& term = terms_[i];
+    double v = term.coefficient, d = 0, exact = std::abs(term.coefficient), perturbed = exact;
+    for (int j = 0; j < term.count; ++j) {
+      const int f = term.factor[j];
+      const double lf = l[f], sf = factors_[f].slope, mf = mag[f], pf = pert[f];
+      for (int p = 0; p < term.power[j]; ++p) {
+        d = d * lf + v * sf;
+        v *= lf;
+        exact *= mf;
+        perturbed *= pf;
+      }
+    }
+    value += v;
+    derivative += d;
+    spread += perturbed - exact;
+    size += perturbed;
+  }
+  bound = 4.0 * (spread + (degree_ + numTerms_ + 2) * kEps * size);
+}
+
 int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const {
-  const int n = degree();
-  std::fill(out.begin(), out.begin() + n + 1, 0.0);
+  const int n = degree_;
   std::array<double, kMaxFactors> la, lb;
   for (int f = 0; f < numFactors_; ++f) {
     la[f] = factors_[f](a);
     lb[f] = factors_[f](b);
   }
+  // The sum of the terms of degree <= m, elevated to degree m, is kept in `out`; each degree step elevates it
+  // once. The end coefficients are summed apart, in term order, so that they equal value(a) and value(b).
+  std::array<double, kMaxTerms> ends0, ends1;
+  int m = n;
+  for (int i = 0; i < numTerms_; ++i) m = std::min(m, terms_[i].degree);
+  std::fill(out.begin(), out.begin() + m + 1, 0.0);
   Coefficients c;
-  for (int i = 0; i < numTerms_; ++i) {
-    const Term& term = terms_[i];
-    c[0] = term.coefficient;
-    int m = 0;
-    for (int j = 0; j < term.count; ++j)
-      for (int p = 0; p < term.power[j]; ++p) multiplyLinear(c, m++, la[term.factor[j]], lb[term.factor[j]]);
-    for (; m < n; ++m) elevate(c, m);
-    for (int k = 0; k <= n; ++k) out[k] += c[k];
+  for (;; ++m) {
+    for (int i = 0; i < numTerms_; ++i) {
+      const Term& term = terms_[i];
+      if (term.degree != m) continue;
+      c[0] = term.coefficient;
+      if (m == 0) {
+        out[0] += c[0];
+        ends0[i] = ends1[i] = c[0];
+        continue;
+      }
+      // All factors but the last into c; the last one's product goes straight into `out` (storing it in c and
+      // reading it back stalled on store forwarding), with the same operations as multiplyLinear.
+      int k = 0;
+      for (int j = 0; j < term.count; ++j)
+        for (int p = j + 1 < term.count ? 0 : 1; p < term.power[j]; ++p)
+          multiplyLinear(c, k++, la[term.factor[j]], lb[term.factor[j]]);
+      const int last = term.factor[term.count - 1];
+      const double l0 = la[last], l1 = lb[last], inv = 1.0 / m;
+      ends0[i] = l0 * c[0];
+      ends1[i] = l1 * c[k];
+      out[m] += ends1[i];
+      for (int q = k; q >= 1; --q) out[q] += (l0 * c[q] * (m - q) + l1 * c[q - 1] * q) * inv;
+      out[0] += ends0[i];
+    }
+    if (m >= n) break;
+    elevate(out, m);
   }
+  double end0 = 0, end1 = 0;
+  for (int i = 0; i < numTerms_; ++i) {
+    end0 += ends0[i];
+    end1 += ends1[i];
+  }
+  out[0] = end0;
+  out[n] = end1;
   return n;
 }
 
@@ -287,26 +355,13 @@ std::optional<Root> firstCrossing(const RayPolynomial& p, double t0, double t1,
 }
 
 RayPolynomial rayPolynomial(const CornerPatch& patch, const Vec3& origin, const Vec3& direction) {
+  // The terms of CornerPatch::terms, in its order, without building its table.
   RayPolynomial poly;
-  std::array<PatchTerm, CornerPatch::kMaxTerms> terms;
-  const int n = patch.terms(terms);
   std::array<int, 6> faceFactor;
   faceFactor.fill(-1);
-  std::array<int, CornerPatch::kMaxCorners> cornerFactor;
-  cornerFactor.fill(-1);
-  for (int i = 0; i < n; ++i) {
-    const PatchTerm& term = terms[i];
-    const int t = poly.addTerm(term.coefficient);
-    if (term.corner >= 0) {
-      int& cf = cornerFactor[term.corner];
-      if (cf < 0) {
-        const Vec3& nc = patch.normal[term.corner];
-        cf = poly.addFactor(LinearFactor{nc.dot(origin - patch.point[term.corner]), nc.dot(direction)});
-      }
-      poly.multiplyTerm(t, cf, 1);
-    }
+  auto multiplyFaces = [&](int t, unsigned mask) {
     for (int f = 0; f < 6; ++f) {
-      if (!((term.faceSquares >> f) & 1)) continue;
+      if (!((mask >> f) & 1)) continue;
       int& ff = faceFactor[f];
       if (ff < 0) {
         const int axis = f / 2;
@@ -315,7 +370,20 @@ RayPolynomial rayPolynomial(const CornerPatch& patch, const Vec3& origin, const 
       }
       poly.multiplyTerm(t, ff, 2);
     }
+  };
+  const unsigned faces = patch.faceMask;
+  for (int c = 0; c < patch.numCorners; ++c) {
+    if (patch.weight[c] == 0) continue;
+    const int t = poly.addTerm(patch.weight[c]);
+    const Vec3& nc = patch.normal[c];
+    poly.multiplyTerm(t, poly.addFactor(LinearFactor{nc.dot(origin - patch.point[c]), nc.dot(direction)}), 1);
+    const auto ef = cube::edgeFaces(patch.edge[c]);
+    multiplyFaces(t, faces & ~((1u << ef[0]) | (1u << ef[1])));
   }
+  for (int f = 0; f < 6; ++f)
+    if (((faces >> f) & 1) && patch.faceCoefficient[f] != 0)
+      multiplyFaces(poly.addTerm(patch.faceCoefficient[f]), faces & ~(1u << f));
+  if (patch.central != 0) multiplyFaces(poly.addTerm(patch.central), faces);
   return poly;
 }
 

@@ -14,16 +14,18 @@
 
 namespace cip {
 
-/// A linear function of the ray parameter: value(t) = offset + slope * t.
+/// A linear function of the ray parameter: value(t) = offset + slope * t. A plain aggregate (write
+/// LinearFactor{offset, slope}; LinearFactor{} is zero) so that RayPolynomial's table is not zero-filled.
 struct LinearFactor {
-  double offset = 0;
-  double slope = 0;
+  double offset;
+  double slope;
   double operator()(double t) const { return offset + slope * t; }
 };
 
 /// A univariate polynomial in the ray parameter t, kept as a sum of terms
 /// coefficient * prod_i factor_i(t)^power_i over a shared table of linear factors. Fixed capacity, no
-/// allocation.
+/// allocation; only the factors and terms in use are ever written (one is built for every cell a ray meets,
+/// so nothing is zero-filled).
 class RayPolynomial {
  public:
   static constexpr int kMaxFactors = 32;      ///< distinct linear factors
@@ -42,7 +44,7 @@ class RayPolynomial {
   int numFactors() const { return numFactors_; }
   const LinearFactor& factor(int i) const { return factors_[i]; }
   /// Largest term degree (an upper bound of the true degree: leading coefficients may cancel).
-  int degree() const;
+  int degree() const { return degree_; }
 
   /// Value at t, evaluated in factored form.
   double value(double t) const;
@@ -51,23 +53,28 @@ class RayPolynomial {
   /// Bound of the rounding error of value(t): a small multiple of machine epsilon times
   /// sum |coefficient| * prod |factor(t)|^power. A value below it cannot be told apart from zero.
   double roundingBound(double t) const;
+  /// valueAndDerivative and roundingBound at t in one pass over the terms (the same three numbers).
+  void valueDerivativeAndBound(double t, double& value, double& derivative, double& bound) const;
 
   /// Bernstein coefficients on [a,b] (degree = degree()), built from the factors' end values; returns the
-  /// degree. Coefficient 0 is value(a) and coefficient degree is value(b), each computed as in value().
+  /// degree. Coefficient 0 is value(a) and coefficient degree is value(b), each computed as in value(). Terms
+  /// of equal degree are summed before their sum is degree-elevated, once per degree step.
   int bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const;
 
  private:
+  // Entries past numFactors_, numTerms_ and a term's count are never read, so they are left unwritten.
   struct Term {
-    double coefficient = 0;
-    int count = 0;
-    int degree = 0;
-    std::array<std::uint8_t, kMaxTermFactors> factor{};
-    std::array<std::uint8_t, kMaxTermFactors> power{};
+    double coefficient;
+    int count;
+    int degree;
+    std::array<std::uint8_t, kMaxTermFactors> factor;
+    std::array<std::uint8_t, kMaxTermFactors> power;
   };
-  std::array<LinearFactor, kMaxFactors> factors_{};
-  std::array<Term, kMaxTerms> terms_{};
+  std::array<LinearFactor, kMaxFactors> factors_;
+  std::array<Term, kMaxTerms> terms_;
   int numFactors_ = 0;
   int numTerms_ = 0;
+  int degree_ = 0;
 };
 
 /// Limits of the root search.
@@ -77,7 +84,8 @@ struct RootSearchOptions {
   double minRelativeWidth = 1e-15;
   /// Maximum number of intervals examined in one search; when exceeded the search reports no root.
   int maxIntervals = 4096;
-  /// Newton / bisection iterations for one bracketed root.
+  /// Newton / bisection iterations for one bracketed root. Refinement also stops once |value| is within
+  /// roundingBound (after a last Newton step): beyond it the steps only follow rounding noise.
   int maxRefineIterations = 200;
   /// intersectRayPatch only: report only zeros where the polynomial changes sign (see firstCrossing).
   bool crossingsOnly = false;
