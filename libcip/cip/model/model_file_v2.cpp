@@ -1249,6 +1249,11 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
     if (d < 1 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
     m.geometry.dims[a] = d;
   }
+  // Point and brick keys are 64-bit: at most 2^62 points (each dimension is at most 2^31).
+  const std::int64_t plane = m.geometry.dims[0] * m.geometry.dims[1];
+  if (m.geometry.dims[2] > (std::int64_t(1) << 62) / plane)
+    r.fail("grid of " + std::to_string(m.geometry.dims[0]) + " x " + std::to_string(m.geometry.dims[1]) + " x " +
+           std::to_string(m.geometry.dims[2]) + " points is too large");
   for (int a = 0; a < 3; ++a) m.geometry.origin[a] = r.finite("origin");
   for (int a = 0; a < 3; ++a) {
     m.geometry.spacing[a] = r.finite("spacing");
