@@ -80,7 +80,12 @@ class StreamReader {
     }
     fail("has an over-long number");
   }
-  std::int64_t svarint() { return unzigzag(varint()); }
+  /// A signed number; none beyond 2^62 in magnitude is valid anywhere (and negating one must be safe).
+  std::int64_t svarint() {
+    const std::uint64_t v = varint();
+    if (v >> 63) fail("has a number out of range");
+    return unzigzag(v);
+  }
   std::uint8_t byte() {
     if (pos_ >= b_->size()) fail("ends early");
     return (*b_)[pos_++];
