@@ -80,7 +80,12 @@ class StreamReader {
     }
     fail("has an over-long number");
   }
-  std::int64_t svarint() { return unzigzag(varint()); }
+  /// A signed number; none beyond 2^62 in magnitude is valid anywhere (and negating one must be safe).
+  std::int64_t svarint() {
+    const std::uint64_t v = varint();
+    if (v >> 63) fail("has a number out of range");
+    return unzigzag(v);
+  }
   std::uint8_t byte() {
     if (pos_ >= b_->size()) fail("ends early");
     return (*b_)[pos_++];
@@ -1255,6 +1260,11 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
     if (d < 1 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
     m.geometry.dims[a] = d;
   }
+  // Point and brick keys are 64-bit: at most 2^62 points (each dimension is at most 2^31).
+  const std::int64_t plane = m.geometry.dims[0] * m.geometry.dims[1];
+  if (m.geometry.dims[2] > (std::int64_t(1) << 62) / plane)
+    r.fail("grid of " + std::to_string(m.geometry.dims[0]) + " x " + std::to_string(m.geometry.dims[1]) + " x " +
+           std::to_string(m.geometry.dims[2]) + " points is too large");
   for (int a = 0; a < 3; ++a) m.geometry.origin[a] = r.finite("origin");
   for (int a = 0; a < 3; ++a) {
     m.geometry.spacing[a] = r.finite("spacing");
