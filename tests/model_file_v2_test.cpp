@@ -191,7 +191,8 @@ TEST(ModelFileV2, DamageIsReportedWithItsChunk) {
   EXPECT_NE(patched(dir + 12, &huge, 4).find("impossible counts"), std::string::npos);
   EXPECT_NE(patched(dir + 16, &huge, 4).find("impossible counts"), std::string::npos);
   const std::uint32_t one = 1;
-  EXPECT_NE(patched(dir + 16, &one, 4).find("vertex and face counts"), std::string::npos)
+  // A vertex count that the chunk's data contradict: its streams are too long for it.
+  EXPECT_NE(patched(dir + 16, &one, 4).find("chunk 0 (brick "), std::string::npos)
       << patched(dir + 16, &one, 4);
   const std::uint64_t longChunk = ~std::uint64_t(0) / 2;
   EXPECT_NE(patched(dir + 24, &longChunk, 8).find("truncated"), std::string::npos);
@@ -203,7 +204,7 @@ TEST(ModelFileV2, DamageIsReportedWithItsChunk) {
   }
   const std::uint32_t outside = 1000;
   EXPECT_NE(patched(dir, &outside, 4).find("outside the grid"), std::string::npos);
-  // A stream that declares more bytes than a brick can hold (the chunk's checksum re-sealed too).
+  // A stream that declares more bytes than its counts can need (the chunk's checksum re-sealed too).
   {
     std::vector<std::uint8_t> b = good;
     const std::uint32_t raw = 0x7FFFFFFF;
@@ -214,7 +215,7 @@ TEST(ModelFileV2, DamageIsReportedWithItsChunk) {
     std::memcpy(b.data() + dir + 32, &c, 4);
     resealHeader(b, m);
     const std::string e = parseError(b);
-    EXPECT_NE(e.find("more than a brick can hold"), std::string::npos) << e;
+    EXPECT_NE(e.find("more than its counts can need"), std::string::npos) << e;
   }
   // Truncated anywhere: an error, never a crash.
   for (std::size_t len = 0; len < good.size(); len += 1 + len / 8) {

@@ -971,7 +971,7 @@ void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& ou
 }
 
 void checkOptions(const ModelFileV2Options& q) {
-  if (q.brick < 8 || q.brick > 250) throw Error("model format 2: brick size must be in 8..250");
+  if (q.brick < 8 || q.brick > 128) throw Error("model format 2: brick size must be in 8..128");
   if (q.positionBits < 4 || q.positionBits > 16)
     throw Error("model format 2: position bits must be in 4..16");
   if (q.normalBits < 6 || q.normalBits > 16) throw Error("model format 2: normal bits must be in 6..16");
@@ -1221,7 +1221,7 @@ std::vector<std::uint8_t> decompress(const std::uint8_t*& at, const std::uint8_t
   std::memcpy(&stored, at + 4, 4);
   at += 8;
   if (raw > cap)
-    throw Error(where + " declares " + std::to_string(raw) + " bytes, more than a brick can hold");
+    throw Error(where + " declares " + std::to_string(raw) + " bytes, more than its counts can need");
   if (stored > static_cast<std::size_t>(end - at)) throw Error(where + " is truncated");
   std::vector<std::uint8_t> out(raw);
   if (raw == 0) {
@@ -1263,8 +1263,8 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
   // Point and brick keys are 64-bit: at most 2^62 points (each dimension is at most 2^31).
   const std::int64_t plane = m.geometry.dims[0] * m.geometry.dims[1];
   if (m.geometry.dims[2] > (std::int64_t(1) << 62) / plane)
-    r.fail("grid of " + std::to_string(m.geometry.dims[0]) + " x " + std::to_string(m.geometry.dims[1]) + " x " +
-           std::to_string(m.geometry.dims[2]) + " points is too large");
+    r.fail("grid of " + std::to_string(m.geometry.dims[0]) + " x " + std::to_string(m.geometry.dims[1]) +
+           " x " + std::to_string(m.geometry.dims[2]) + " points is too large");
   for (int a = 0; a < 3; ++a) m.geometry.origin[a] = r.finite("origin");
   for (int a = 0; a < 3; ++a) {
     m.geometry.spacing[a] = r.finite("spacing");
@@ -1352,10 +1352,23 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
   const std::uint8_t* end = at + e.bytes;
   if (crc(at, e.bytes) != e.crc) throw Error(where + ": checksum mismatch");
   setupChunk(L, e.brick, ch);
-  const auto streamCap = static_cast<std::size_t>(16 * (L.B + 3) * (L.B + 3) * (L.B + 3) + 64);
+  // The most bytes each stream can need for the chunk's counts (a writer never exceeds them; a reader
+  // allocates no more).
+  const std::size_t R = static_cast<std::size_t>(L.B + 3), V = e.vertices, F = e.faces, C = e.cells;
+  const std::size_t cap[kNumStreams] = {R * R * (R + 3),
+                                        10 + 5 * static_cast<std::size_t>(L.B * L.B * L.B),
+                                        F,
+                                        V,
+                                        V,
+                                        20 * V,
+                                        10 * F,
+                                        10 * C,
+                                        8 * V,
+                                        V,
+                                        10 + 42 * V};
   ch.streams.resize(kNumStreams);
   for (int s = 0; s < kNumStreams; ++s)
-    ch.streams[s] = decompress(at, end, streamCap, where + ", stream " + std::to_string(s) + ",");
+    ch.streams[s] = decompress(at, end, cap[s], where + ", stream " + std::to_string(s) + ",");
   if (at != end) throw Error(where + ": bytes after its last stream");
   StreamReader rows(&ch.streams[kRows], where + ": sign rows");
   decodeRows(ch, rows);

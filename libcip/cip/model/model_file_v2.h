@@ -16,7 +16,7 @@ namespace cip {
 /// Quantisation and chunking of a version 2 file. The defaults keep the stored surface within 0.01 voxel of
 /// the full-precision one (docs/model-format.md says how that is measured).
 struct ModelFileV2Options {
-  int brick = 64;              ///< cells per brick edge (8..250): the unit of chunking
+  int brick = 64;              ///< cells per brick edge (8..128): the unit of chunking
   int positionBits = 9;        ///< crossing parameter along its edge: t = q / (2^bits - 1), 4..16
   int normalBits = 9;          ///< octahedral step of the normal residual: 2^-bits, 6..16
   double sideStep = 0.002;     ///< side coefficients: absolute step near zero ...
