@@ -227,6 +227,8 @@ struct ChunkTopology {
                                           ///< is zero (grid-point vertices); 5: edge start above; 6: on a
                                           ///< grid point
   std::vector<std::uint32_t> faceKey;     ///< owned crossed faces: point key 3 + normal axis
+  std::vector<std::uint32_t> vertexRow,
+      faceRow;                            ///< per owned point row: its first entry of vertexKey, faceKey
   std::vector<std::uint8_t> facePairing;  ///< 1: pairs around canonical vertices 0 and 3 (ambiguous faces)
   std::uint64_t vertexBase = 0, faceBase = 0;
   std::vector<std::vector<std::uint8_t>> streams;  ///< the reader keeps the decompressed streams
@@ -305,8 +307,23 @@ void ownedItems(const Layout& L, ChunkTopology& ch) {
     for (std::int64_t ly = 0; ly < ch.ownedCount[1]; ++ly) {
       const std::int64_t y = ch.origin[1] + ly, z = ch.origin[2] + lz;
       if (quietRows(ch, y, z)) continue;
+      // The four point rows (y..y+1, z..z+1) this row's edges and faces reach; a missing one (beyond the
+      // grid) stands in as this row, and the checks below leave out what would use it.
+      const Region& r = ch.region;
+      const std::uint8_t* row[4];
+      for (int d = 0; d < 4; ++d) {
+        const std::int64_t yy = y + (d & 1), zz = z + (d >> 1);
+        const bool in = yy < r.lo[1] + r.n[1] && zz < r.lo[2] + r.n[2];
+        row[d] = &ch.sign[static_cast<std::size_t>(r.rowIndex(in ? yy : y, in ? zz : z) * r.n[0])];
+      }
+      const std::int64_t xEnd = r.lo[0] + r.n[0] - 1;  // last point of the row
       for (std::int64_t lx = 0; lx < ch.ownedCount[0]; ++lx) {
-        const I3 p{ch.origin[0] + lx, y, z};
+        const std::int64_t x = ch.origin[0] + lx, i = x - r.lo[0], i1 = std::min(x + 1, xEnd) - r.lo[0];
+        const std::uint8_t v = row[0][i];
+        if (row[0][i1] == v && row[1][i] == v && row[1][i1] == v && row[2][i] == v && row[2][i1] == v &&
+            row[3][i] == v && row[3][i1] == v)
+          continue;  // nothing crosses from this point
+        const I3 p{x, y, z};
         const std::uint32_t key = static_cast<std::uint32_t>(lx + (L.B + 1) * (ly + (L.B + 1) * lz));
         const int sp = s(p);
         for (int a = 0; a < 3; ++a) {
@@ -331,6 +348,15 @@ void ownedItems(const Layout& L, ChunkTopology& ch) {
         }
       }
     }
+  // Where each point row's entries start, for lookups by point.
+  const auto rows = static_cast<std::size_t>((L.B + 1) * (L.B + 1));
+  auto index = [&](const std::vector<std::uint32_t>& keys, std::vector<std::uint32_t>& start) {
+    start.assign(rows + 1, 0);
+    for (std::uint32_t k : keys) ++start[k / 3 / static_cast<std::uint32_t>(L.B + 1) + 1];
+    for (std::size_t r = 0; r < rows; ++r) start[r + 1] += start[r];
+  };
+  index(ch.vertexKey, ch.vertexRow);
+  index(ch.faceKey, ch.faceRow);
 }
 
 /// Whether the face at grid point p across `axis` has its four crossings (diagonal points share a sign).
@@ -376,23 +402,37 @@ struct Chunks {
     if (it == keys.end() || *it != k) return nullptr;
     return &list[static_cast<std::size_t>(it - keys.begin())];
   }
-  /// Global index of the vertex on the edge from grid point p along `axis`, or -1.
-  std::int64_t vertexOf(const I3& p, int axis) const {
-    const ChunkTopology* ch = find(L.pointBrick(p));
-    if (!ch) return -1;
-    const std::uint32_t key = pointKey(*ch, L.B, p) * 3 + static_cast<std::uint32_t>(axis);
-    auto it = std::lower_bound(ch->vertexKey.begin(), ch->vertexKey.end(), key);
-    if (it == ch->vertexKey.end() || *it != key) return -1;
-    return static_cast<std::int64_t>(ch->vertexBase) + (it - ch->vertexKey.begin());
+  /// The chunk that owns grid point p; `hint` (the asking cell's chunk) is tried first.
+  const ChunkTopology* owner(const I3& p, const ChunkTopology* hint) const {
+    const I3 b = L.pointBrick(p);
+    return hint && hint->brick == b ? hint : find(b);
   }
-  std::int64_t faceOf(const I3& p, int axis, std::uint8_t* pairing) const {
-    const ChunkTopology* ch = find(L.pointBrick(p));
+  /// Global index of the vertex on the edge from grid point p along `axis`, or -1.
+  std::int64_t vertexOf(const I3& p, int axis, const ChunkTopology* hint) const {
+    const ChunkTopology* ch = owner(p, hint);
     if (!ch) return -1;
-    const std::uint32_t key = pointKey(*ch, L.B, p) * 3 + static_cast<std::uint32_t>(axis);
-    auto it = std::lower_bound(ch->faceKey.begin(), ch->faceKey.end(), key);
-    if (it == ch->faceKey.end() || *it != key) return -1;
-    if (pairing) *pairing = ch->facePairing[static_cast<std::size_t>(it - ch->faceKey.begin())];
-    return static_cast<std::int64_t>(ch->faceBase) + (it - ch->faceKey.begin());
+    const std::int64_t i = rowSearch(ch->vertexKey, ch->vertexRow, pointKey(*ch, L.B, p), axis);
+    return i < 0 ? -1 : static_cast<std::int64_t>(ch->vertexBase) + i;
+  }
+  std::int64_t faceOf(const I3& p, int axis, std::uint8_t* pairing, const ChunkTopology* hint) const {
+    const ChunkTopology* ch = owner(p, hint);
+    if (!ch) return -1;
+    const std::int64_t i = rowSearch(ch->faceKey, ch->faceRow, pointKey(*ch, L.B, p), axis);
+    if (i < 0) return -1;
+    if (pairing) *pairing = ch->facePairing[static_cast<std::size_t>(i)];
+    return static_cast<std::int64_t>(ch->faceBase) + i;
+  }
+
+ private:
+  /// Position of key (point, axis) in `keys`, looked for among its point row's entries only.
+  std::int64_t rowSearch(const std::vector<std::uint32_t>& entries,
+                         const std::vector<std::uint32_t>& rowStart, std::uint32_t point, int axis) const {
+    const std::uint32_t key = point * 3 + static_cast<std::uint32_t>(axis);
+    const std::size_t row = point / static_cast<std::uint32_t>(L.B + 1);
+    if (row + 1 >= rowStart.size()) return -1;
+    for (std::uint32_t i = rowStart[row]; i < rowStart[row + 1]; ++i)
+      if (entries[i] == key) return i;
+    return -1;
   }
 };
 
@@ -450,7 +490,7 @@ Skeleton assemble(const Chunks& chunks, int positionBits, Model& m, const std::s
         I3 p = idx;
         p[f / 2] += f & 1;
         std::uint8_t pairing = 0;
-        const std::int64_t fi = chunks.faceOf(p, f / 2, &pairing);
+        const std::int64_t fi = chunks.faceOf(p, f / 2, &pairing, &ch);
         if (fi < 0)
           throw Error(name + ": damaged model file: a crossed face of cell " + std::to_string(i) +
                       " is missing");
@@ -474,6 +514,7 @@ Skeleton assemble(const Chunks& chunks, int positionBits, Model& m, const std::s
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, total), [&](const tbb::blocked_range<std::size_t>& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
       const ModelCell& cell = m.cells[i];
+      const ChunkTopology* hint = &chunks.list[sk.origin[i].chunk];
       const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
       for (int k = 0; k < loops.numCorners(); ++k) {
         const int e = loops.edges[static_cast<std::size_t>(k)];
@@ -481,7 +522,7 @@ Skeleton assemble(const Chunks& chunks, int positionBits, Model& m, const std::s
         const I3 p{cell.index[0] + static_cast<std::int64_t>(s[0]),
                    cell.index[1] + static_cast<std::int64_t>(s[1]),
                    cell.index[2] + static_cast<std::int64_t>(s[2])};
-        const std::int64_t v = chunks.vertexOf(p, cube::edgeAxis(e));
+        const std::int64_t v = chunks.vertexOf(p, cube::edgeAxis(e), hint);
         if (v < 0)
           throw Error(name + ": damaged model file: a crossed edge of cell " + std::to_string(i) +
                       " has no vertex");
