@@ -715,13 +715,25 @@ std::vector<double> paperSidePrediction(const Model& m, const Skeleton& sk, std:
 
 namespace {
 
-/// Row-range lookups into the model's cells (increasing key order).
+/// The model's cells around one chunk (indices from the region's first point - 1 to its last), by grid index:
+/// the writer's lookups, filled while the chunk's signs are.
 struct CellFinder {
-  const Model& m;
+  I3 lo{}, n{};
+  std::vector<std::int64_t> cell;  ///< model cell, or -1
+  void reset(const Region& r) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = r.lo[a] - 1;
+      n[a] = r.n[a] + 1;
+    }
+    cell.assign(static_cast<std::size_t>(n[0] * n[1] * n[2]), -1);
+  }
+  std::int64_t& at(const I3& c) {
+    return cell[static_cast<std::size_t>((c[0] - lo[0]) + n[0] * ((c[1] - lo[1]) + n[1] * (c[2] - lo[2])))];
+  }
   std::int64_t find(const I3& c) const {
     for (int a = 0; a < 3; ++a)
-      if (c[a] < 0 || c[a] >= m.geometry.dims[a] - 1) return -1;
-    return m.findCell(c[0], c[1], c[2]);
+      if (c[a] < lo[a] || c[a] >= lo[a] + n[a]) return -1;
+    return cell[static_cast<std::size_t>((c[0] - lo[0]) + n[0] * ((c[1] - lo[1]) + n[1] * (c[2] - lo[2])))];
   }
 };
 
@@ -753,8 +765,9 @@ void markUniformRows(ChunkTopology& ch) {
 /// Signs of the region's points from the model's cells; points no cell decides take the sign of their row's
 /// decided neighbour, and rows with none that of an adjacent row (exactly the volume's own signs when every
 /// crossed cell is in the model).
-void signsFromModel(const Model& m, ChunkTopology& ch, const std::string& name) {
+void signsFromModel(const Model& m, ChunkTopology& ch, CellFinder& finder, const std::string& name) {
   const Region& r = ch.region;
+  finder.reset(r);
   const std::size_t n = static_cast<std::size_t>(r.n[0] * r.n[1] * r.n[2]);
   std::vector<std::int8_t> s(n, -1);
   auto rowKey = [](std::uint32_t i, std::uint32_t j, std::uint32_t k) {
@@ -771,6 +784,7 @@ void signsFromModel(const Model& m, ChunkTopology& ch, const std::string& name) 
       for (; it != m.cells.end() && it->index[1] == j && it->index[2] == k && it->index[0] < iEnd; ++it) {
         const ModelCell& cell = *it;
         const std::int64_t i = cell.index[0];
+        finder.at({i, j, k}) = it - m.cells.begin();
         for (int v = 0; v < 8; ++v) {
           const auto o = cube::vertexCoords(v);
           const I3 p{i + o[0], j + o[1], k + o[2]};
@@ -858,10 +872,10 @@ struct ChunkSource {
   std::vector<std::int64_t> cell;    ///< model cell per present cell
 };
 
-void buildChunkFromModel(const Model& m, const Layout& L, const CellFinder& finder,
-                         const ModelFileV2Options& q, ChunkTopology& ch, ChunkSource& src,
-                         const std::string& name) {
-  signsFromModel(m, ch, name);
+void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Options& q, ChunkTopology& ch,
+                         ChunkSource& src, const std::string& name) {
+  CellFinder finder;
+  signsFromModel(m, ch, finder, name);
   ch.streams.assign(kNumStreams, {});
   encodeRows(ch, ch.streams[kRows]);
   // Present cells and the crossed ones the model leaves out.
@@ -1064,11 +1078,9 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
     const std::int64_t k = keys[i];
     setupChunk(L, {k % L.nb[0], (k / L.nb[0]) % L.nb[1], k / (L.nb[0] * L.nb[1])}, chunks.list[i]);
   }
-  const CellFinder finder{m};
   std::vector<ChunkSource> sources(chunks.list.size());
-  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
-    buildChunkFromModel(m, L, finder, q, chunks.list[i], sources[i], name);
-  });
+  tbb::parallel_for(std::size_t(0), chunks.list.size(),
+                    [&](std::size_t i) { buildChunkFromModel(m, L, q, chunks.list[i], sources[i], name); });
   std::uint64_t vb = 0, fb = 0;
   for (ChunkTopology& ch : chunks.list) {
     ch.vertexBase = vb;
