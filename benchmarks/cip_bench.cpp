@@ -245,7 +245,8 @@ void fidelity(const std::string& csvPath, bool quick) {
           o.normals = mode;
           o.method = method;
           o.exactField = field.get();
-          cip::Model m = cip::buildModel(grid, o);
+          // The model as its file stores it (format 2): the surface users get.
+          cip::Model m = cip::storedModel(cip::buildModel(grid, o));
           report(std::string("patch-") + toString(m.method) + "-" + cip::toString(mode), m,
                  cip::samplePatchSurface(m, lines), true);
         }
@@ -255,7 +256,7 @@ void fidelity(const std::string& csvPath, bool quick) {
         cip::BuildOptions o;
         o.isovalue = iso;
         o.reconstruction = kind;
-        cip::Model m = cip::buildModel(grid, o);
+        cip::Model m = cip::storedModel(cip::buildModel(grid, o));
         report(std::string("patch-fitted-gradient-") + cip::toString(kind), m,
                cip::samplePatchSurface(m, lines), true);
       }
