@@ -16,19 +16,14 @@
 #include "cip/model/model_file.h"
 #include "cip/topology/cube_topology.h"
 #include "cip/volume/analytic_field.h"
+#include "support/field_model.h"
 #include "support/random_volume.h"
 
 using namespace cip;
 
 namespace {
 
-Model fieldModel(const std::string& name, int n, PatchMethod method) {
-  const auto f = makeAnalyticField(name);
-  BuildOptions o;
-  o.isovalue = f->defaultIsovalue();
-  o.method = method;
-  return buildModel(sampleField(*f, n, name), o);
-}
+using test::fieldModel;
 
 std::vector<std::uint8_t> withBrick(const Model& m, int brick) {
   ModelFileOptions o;

@@ -22,6 +22,7 @@
 #include "cip/model/model_file.h"
 #include "cip/readers/volume_reader.h"
 #include "cip/volume/analytic_field.h"
+#include "support/field_model.h"
 #include "support/volume_blocks.h"
 #include "support/volume_files.h"
 
@@ -38,13 +39,7 @@ struct Case {
   Model model;
 };
 
-Model fieldModel(const std::string& field, int n, PatchMethod method) {
-  const auto f = makeAnalyticField(field);
-  BuildOptions o;
-  o.isovalue = f->defaultIsovalue();
-  o.method = method;
-  return buildModel(sampleField(*f, n, field), o);
-}
+using test::fieldModel;
 
 Model volumeModel(const DenseGrid& grid, double iso, PatchMethod method) {
   BuildOptions o;

@@ -1,13 +1,12 @@
 #include "cip/model/model_file.h"
 
-#include <zlib.h>
-
 #include <cmath>
 #include <cstring>
 #include <fstream>
 #include <limits>
 
 #include "cip/core/atomic_file.h"
+#include "cip/core/checksum.h"
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
 #include "cip/topology/cube_topology.h"
@@ -81,14 +80,7 @@ class Reader {
 };
 
 std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
-  uLong c = crc32(0L, Z_NULL, 0);
-  while (size > 0) {
-    uInt chunk = static_cast<uInt>(std::min<std::size_t>(size, 1u << 30));
-    c = crc32(c, data, chunk);
-    data += chunk;
-    size -= chunk;
-  }
-  return static_cast<std::uint32_t>(c);
+  return crc32Of(data, size);
 }
 
 }  // namespace

@@ -1,7 +1,6 @@
 #include "cip/model/model_file_v2.h"
 
 #include <tbb/parallel_for.h>
-#include <zlib.h>
 #include <zstd.h>
 
 #include <Eigen/Geometry>
@@ -11,6 +10,7 @@
 #include <limits>
 #include <optional>
 
+#include "cip/core/checksum.h"
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
 #include "cip/patch/patch_coefficients.h"
@@ -109,14 +109,7 @@ class StreamReader {
 };
 
 std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
-  uLong c = crc32(0L, Z_NULL, 0);
-  while (size > 0) {
-    uInt chunk = static_cast<uInt>(std::min<std::size_t>(size, 1u << 30));
-    c = crc32(c, data, chunk);
-    data += chunk;
-    size -= chunk;
-  }
-  return static_cast<std::uint32_t>(c);
+  return crc32Of(data, size);
 }
 
 // ---- quantisers (shared by writer and reader: the reader's values are the writer's, bit for bit) ---------

@@ -1,0 +1,19 @@
+// A model of an analytic field sampled at N cells per axis, with the field's own isovalue and the given
+// construction: the common fixture of the model file tests.
+#pragma once
+#include <string>
+
+#include "cip/model/model_builder.h"
+#include "cip/volume/analytic_field.h"
+
+namespace cip::test {
+
+inline Model fieldModel(const std::string& field, int n, PatchMethod method) {
+  const auto f = makeAnalyticField(field);
+  BuildOptions o;
+  o.isovalue = f->defaultIsovalue();
+  o.method = method;
+  return buildModel(sampleField(*f, n, field), o);
+}
+
+}  // namespace cip::test
