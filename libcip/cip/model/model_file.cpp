@@ -9,15 +9,14 @@
 #include "cip/core/checksum.h"
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
+#include "cip/model/model_file_header.h"
 #include "cip/topology/cube_topology.h"
 
 namespace cip {
 
 namespace {
 
-constexpr char kMagic[8] = {'C', 'I', 'P', 'M', 'O', 'D', 'E', 'L'};
 constexpr std::size_t kVertexBytes = 7 * 8;
-constexpr std::size_t kMaxSourceBytes = 65536;
 
 /// Writes into a buffer sized beforehand (serializeModel counts the bytes first): a copy per field, no
 /// growth.
@@ -45,39 +44,7 @@ class Writer {
   std::uint8_t* at_;
 };
 
-class Reader {
- public:
-  Reader(const std::uint8_t* data, std::size_t size, const std::string& name)
-      : d_(data), n_(size), name_(name) {}
-  template <class T>
-  T get(const char* what) {
-    need(sizeof(T), what);
-    T v;
-    std::memcpy(&v, d_ + pos_, sizeof(T));
-    pos_ += sizeof(T);
-    return v;
-  }
-  double getFinite(const char* what) {
-    double v = get<double>(what);
-    if (!std::isfinite(v)) fail(std::string(what) + " is not a finite number");
-    return v;
-  }
-  void need(std::size_t bytes, const char* what) const {
-    if (bytes > n_ - pos_) fail(std::string("truncated (") + what + " runs past the end of the file)");
-  }
-  std::size_t remaining() const { return n_ - pos_; }
-  std::size_t pos() const { return pos_; }
-  const std::uint8_t* here() const { return d_ + pos_; }
-  void skip(std::size_t bytes) { pos_ += bytes; }
-  [[noreturn]] void fail(const std::string& why) const {
-    throw Error(name_ + ": damaged model file: " + why);
-  }
-
- private:
-  const std::uint8_t* d_;
-  std::size_t n_, pos_ = 0;
-  const std::string& name_;
-};
+using Reader = ModelFileReader;
 
 std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
   return crc32Of(data, size);
@@ -90,28 +57,16 @@ std::vector<std::uint8_t> serializeModel(const Model& m, const ModelFileOptions&
     return serializeModelV2(m, options.v2 ? *options.v2 : ModelFileV2Options::forMethod(m.method));
   if (options.version != 1)
     throw Error("model file version " + std::to_string(options.version) + " cannot be written");
-  const std::string source = m.source.substr(0, kMaxSourceBytes);
-  // Magic, version, dims, origin, spacing, isovalue and four single bytes (96), the source's length and
-  // bytes, the three counts, the tables (a cell: index, three bytes, four loop sizes, central, a side
-  // coefficient per crossed face; its corners are counted with the corner table) and the CRC.
-  std::size_t size =
-      96 + 4 + source.size() + 24 + m.vertices.size() * kVertexBytes + m.corners.size() * 4 + 4;
+  std::vector<std::uint8_t> header;
+  appendModelHeader(header, m, 1, 0);  // the reserved byte
+  // The header up to the source description, the three counts, the tables (a cell: index, three bytes, four
+  // loop sizes, central, a side coefficient per crossed face; its corners are counted with the corner table)
+  // and the CRC.
+  std::size_t size = header.size() + 24 + m.vertices.size() * kVertexBytes + m.corners.size() * 4 + 4;
   for (const ModelCell& c : m.cells)
     size += 12 + 3 + 4 + 8 + 8 * static_cast<std::size_t>(__builtin_popcount(cube::crossedFaces(c.config)));
   Writer w(size);
-  for (char c : kMagic) w.put(c);
-  w.put<std::uint32_t>(1);
-  for (auto d : m.geometry.dims) w.put<std::int64_t>(d);
-  for (int a = 0; a < 3; ++a) w.put<double>(m.geometry.origin[a]);
-  for (int a = 0; a < 3; ++a) w.put<double>(m.geometry.spacing[a]);
-  w.put<double>(m.isovalue);
-  w.put<std::uint8_t>(static_cast<std::uint8_t>(m.normalMode));
-  w.put<std::uint8_t>(static_cast<std::uint8_t>(m.method));
-  w.put<std::uint8_t>(m.reconstruction ? static_cast<std::uint8_t>(1 + static_cast<int>(*m.reconstruction))
-                                       : 0);
-  w.put<std::uint8_t>(0);
-  w.put<std::uint32_t>(static_cast<std::uint32_t>(source.size()));
-  w.putBytes(source.data(), source.size());
+  w.putBytes(header.data(), header.size());
   w.put<std::uint64_t>(m.vertices.size());
   w.put<std::uint64_t>(m.cells.size());
   w.put<std::uint64_t>(m.corners.size());
@@ -148,50 +103,15 @@ struct TableCounts {
 
 /// Magic number and version.
 void readPreamble(Reader& r, const std::uint8_t* data, const std::string& name) {
-  r.need(sizeof(kMagic), "magic number");
-  if (std::memcmp(data, kMagic, sizeof(kMagic)) != 0)
+  r.need(sizeof(kModelMagic), "magic number");
+  if (std::memcmp(data, kModelMagic, sizeof(kModelMagic)) != 0)
     throw Error(name + ": not a cip model file (bad magic number)");
-  r.skip(sizeof(kMagic));
+  r.skip(sizeof(kModelMagic));
   auto version = r.get<std::uint32_t>("version");
   if (version != 1 && version != 2) {
     throw Error(name + ": model file version " + std::to_string(version) +
                 " is not supported (this build reads 1 and 2)");
   }
-}
-
-/// Grid geometry, isovalue, normal mode, patch method, reconstruction, the reserved byte and the source
-/// description.
-void readHeaderFields(Reader& r, Model& m) {
-  for (int a = 0; a < 3; ++a) {
-    auto d = r.get<std::int64_t>("dims");
-    if (d < 1 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
-    m.geometry.dims[a] = d;
-  }
-  for (int a = 0; a < 3; ++a) m.geometry.origin[a] = r.getFinite("origin");
-  for (int a = 0; a < 3; ++a) {
-    m.geometry.spacing[a] = r.getFinite("spacing");
-    if (!(m.geometry.spacing[a] > 0)) r.fail("spacing must be positive");
-  }
-  m.isovalue = r.getFinite("isovalue");
-  auto mode = r.get<std::uint8_t>("normal mode");
-  if (mode > 2) r.fail("unknown normal mode " + std::to_string(mode));
-  m.normalMode = static_cast<NormalMode>(mode);
-  auto method = r.get<std::uint8_t>("method");
-  if (method > static_cast<std::uint8_t>(PatchMethod::Fitted)) {
-    r.fail("unknown patch method " + std::to_string(method));
-  }
-  m.method = static_cast<PatchMethod>(method);
-  const auto reconstruction = r.get<std::uint8_t>("reconstruction");
-  if (reconstruction > 1 + static_cast<int>(Reconstruction::Central8)) {
-    r.fail("unknown reconstruction " + std::to_string(reconstruction));
-  }
-  if (reconstruction > 0) m.reconstruction = static_cast<Reconstruction>(reconstruction - 1);
-  r.get<std::uint8_t>("reserved");
-  auto sourceLen = r.get<std::uint32_t>("source length");
-  if (sourceLen > kMaxSourceBytes) r.fail("source description longer than 64 KiB");
-  r.need(sourceLen, "source description");
-  m.source.assign(reinterpret_cast<const char*>(r.here()), sourceLen);
-  r.skip(sourceLen);
 }
 
 TableCounts readTableCounts(Reader& r) {
@@ -304,10 +224,10 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   Reader r(data, size, name);
   readPreamble(r, data, name);
   std::uint32_t version;
-  std::memcpy(&version, data + sizeof(kMagic), 4);
+  std::memcpy(&version, data + sizeof(kModelMagic), 4);
   if (version == 2) return parseModelV2(data, size, name);
   Model m;
-  readHeaderFields(r, m);
+  readModelHeader(r, m);  // version 1 ignores its reserved byte
   const TableCounts counts = readTableCounts(r);
   readVertices(r, counts.vertices, m);
   readCells(r, counts, m);

@@ -13,6 +13,7 @@
 #include "cip/core/checksum.h"
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
+#include "cip/model/model_file_header.h"
 #include "cip/patch/patch_coefficients.h"
 #include "cip/topology/cube_topology.h"
 
@@ -20,9 +21,7 @@ namespace cip {
 
 namespace {
 
-constexpr char kMagic[8] = {'C', 'I', 'P', 'M', 'O', 'D', 'E', 'L'};
 constexpr std::uint32_t kVersion = 2;
-constexpr std::size_t kMaxSourceBytes = 65536;
 constexpr std::size_t kDirectoryEntryBytes = 6 * 4 + 8 + 4;
 
 /// The streams of a chunk, in file order (docs/model-format.md, "Chunk").
@@ -1150,20 +1149,9 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   std::vector<std::uint8_t> out;
   std::size_t total = 0;
   for (const auto& b : chunkBytes) total += b.size();
-  const std::string source = m.source.substr(0, kMaxSourceBytes);
-  out.reserve(200 + source.size() + chunks.list.size() * kDirectoryEntryBytes + total);
-  out.insert(out.end(), kMagic, kMagic + 8);
-  putRaw<std::uint32_t>(out, kVersion);
-  for (auto d : m.geometry.dims) putRaw<std::int64_t>(out, d);
-  for (int a = 0; a < 3; ++a) putRaw<double>(out, m.geometry.origin[a]);
-  for (int a = 0; a < 3; ++a) putRaw<double>(out, m.geometry.spacing[a]);
-  putRaw<double>(out, m.isovalue);
-  out.push_back(static_cast<std::uint8_t>(m.normalMode));
-  out.push_back(static_cast<std::uint8_t>(m.method));
-  out.push_back(m.reconstruction ? static_cast<std::uint8_t>(1 + static_cast<int>(*m.reconstruction)) : 0);
-  out.push_back(flags);
-  putRaw<std::uint32_t>(out, static_cast<std::uint32_t>(source.size()));
-  out.insert(out.end(), source.begin(), source.end());
+  out.reserve(200 + std::min(m.source.size(), kMaxModelSourceBytes) +
+              chunks.list.size() * kDirectoryEntryBytes + total);
+  appendModelHeader(out, m, kVersion, flags);
   putRaw<std::uint32_t>(out, static_cast<std::uint32_t>(q.brick));
   out.push_back(static_cast<std::uint8_t>(q.positionBits));
   out.push_back(static_cast<std::uint8_t>(q.normalBits));
@@ -1192,35 +1180,6 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
 // =========================================================================================================
 
 namespace {
-
-class HeaderReader {
- public:
-  HeaderReader(const std::uint8_t* d, std::size_t n, const std::string& name) : d_(d), n_(n), name_(name) {}
-  template <class T>
-  T get(const char* what) {
-    if (sizeof(T) > n_ - pos_) fail(std::string("truncated (") + what + " runs past the end of the file)");
-    T v;
-    std::memcpy(&v, d_ + pos_, sizeof(T));
-    pos_ += sizeof(T);
-    return v;
-  }
-  double finite(const char* what) {
-    const double v = get<double>(what);
-    if (!std::isfinite(v)) fail(std::string(what) + " is not a finite number");
-    return v;
-  }
-  std::size_t pos() const { return pos_; }
-  std::size_t remaining() const { return n_ - pos_; }
-  void skip(std::size_t n) { pos_ += n; }
-  [[noreturn]] void fail(const std::string& why) const {
-    throw Error(name_ + ": damaged model file: " + why);
-  }
-
- private:
-  const std::uint8_t* d_;
-  std::size_t n_, pos_ = 0;
-  const std::string& name_;
-};
 
 struct DirectoryEntry {
   I3 brick{};
@@ -1298,50 +1257,24 @@ struct FileHeader {
 
 FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::string& name, Model& m,
                       Layout& L) {
-  HeaderReader r(data, size, name);
+  ModelFileReader r(data, size, name);
   r.skip(12);  // magic and version, checked by the caller
   FileHeader h;
-  for (int a = 0; a < 3; ++a) {
-    const auto d = r.get<std::int64_t>("dims");
-    if (d < 1 || d > (std::int64_t(1) << 31)) r.fail("grid dimension " + std::to_string(d) + " out of range");
-    m.geometry.dims[a] = d;
-  }
+  h.flags = readModelHeader(r, m);
+  if (h.flags > 7) r.fail("unknown flags");
   // Point and brick keys are 64-bit: at most 2^62 points (each dimension is at most 2^31).
   const std::int64_t plane = m.geometry.dims[0] * m.geometry.dims[1];
   if (m.geometry.dims[2] > (std::int64_t(1) << 62) / plane)
     r.fail("grid of " + std::to_string(m.geometry.dims[0]) + " x " + std::to_string(m.geometry.dims[1]) +
            " x " + std::to_string(m.geometry.dims[2]) + " points is too large");
-  for (int a = 0; a < 3; ++a) m.geometry.origin[a] = r.finite("origin");
-  for (int a = 0; a < 3; ++a) {
-    m.geometry.spacing[a] = r.finite("spacing");
-    if (!(m.geometry.spacing[a] > 0)) r.fail("spacing must be positive");
-  }
-  m.isovalue = r.finite("isovalue");
-  const auto mode = r.get<std::uint8_t>("normal mode");
-  if (mode > 2) r.fail("unknown normal mode " + std::to_string(mode));
-  m.normalMode = static_cast<NormalMode>(mode);
-  const auto method = r.get<std::uint8_t>("method");
-  if (method > 1) r.fail("unknown patch method " + std::to_string(method));
-  m.method = static_cast<PatchMethod>(method);
-  const auto reconstruction = r.get<std::uint8_t>("reconstruction");
-  if (reconstruction > 1 + static_cast<int>(Reconstruction::Central8))
-    r.fail("unknown reconstruction " + std::to_string(reconstruction));
-  if (reconstruction > 0) m.reconstruction = static_cast<Reconstruction>(reconstruction - 1);
-  h.flags = r.get<std::uint8_t>("flags");
-  if (h.flags > 7) r.fail("unknown flags");
-  const auto sourceLen = r.get<std::uint32_t>("source length");
-  if (sourceLen > kMaxSourceBytes) r.fail("source description longer than 64 KiB");
-  if (sourceLen > r.remaining()) r.fail("truncated (source description)");
-  m.source.assign(reinterpret_cast<const char*>(data + r.pos()), sourceLen);
-  r.skip(sourceLen);
   ModelFileV2Options& q = h.q;
   q.brick = static_cast<int>(r.get<std::uint32_t>("brick size"));
   q.positionBits = r.get<std::uint8_t>("position bits");
   q.normalBits = r.get<std::uint8_t>("normal bits");
   q.sideMantissa = r.get<std::uint8_t>("side mantissa");
   q.centralMantissa = r.get<std::uint8_t>("central mantissa");
-  q.sideStep = r.finite("side step");
-  q.centralStep = r.finite("central step");
+  q.sideStep = r.getFinite("side step");
+  q.centralStep = r.getFinite("central step");
   try {
     checkOptions(q);
   } catch (const Error& e) {
