@@ -245,12 +245,28 @@ void setupChunk(const Layout& L, const I3& brick, ChunkTopology& ch) {
   }
 }
 
+/// 1 if grid point p (inside the chunk's region) is above the isovalue.
+std::uint8_t signAt(const ChunkTopology& ch, const I3& p) {
+  return ch.sign[static_cast<std::size_t>(ch.region.index(p))];
+}
+
+/// The corners of the face at grid point p across `axis`: p, p + b, p + c, p + b + c (b, c: the other axes).
+std::array<I3, 4> faceCorners(const I3& p, int axis) {
+  const auto o = cube::otherAxes(axis);
+  std::array<I3, 4> q{p, p, p, p};
+  ++q[1][o[0]];
+  ++q[2][o[1]];
+  ++q[3][o[0]];
+  ++q[3][o[1]];
+  return q;
+}
+
 std::uint8_t cellConfig(const ChunkTopology& ch, const I3& c) {
   std::uint8_t config = 0;
   for (int v = 0; v < 8; ++v) {
     const auto o = cube::vertexCoords(v);
     const I3 p{c[0] + o[0], c[1] + o[1], c[2] + o[2]};
-    config = static_cast<std::uint8_t>(config | (ch.sign[static_cast<std::size_t>(ch.region.index(p))] << v));
+    config = static_cast<std::uint8_t>(config | (signAt(ch, p) << v));
   }
   return config;
 }
@@ -291,7 +307,7 @@ void ownedItems(const Layout& L, ChunkTopology& ch) {
   ch.vertexKey.clear();
   ch.vertexFlags.clear();
   ch.faceKey.clear();
-  auto s = [&](const I3& p) { return ch.sign[static_cast<std::size_t>(ch.region.index(p))]; };
+  auto s = [&](const I3& p) { return signAt(ch, p); };
   auto inGrid = [&](const I3& p) {
     return p[0] < L.dims[0] && p[1] < L.dims[1] && p[2] < L.dims[2] && p[0] >= 0 && p[1] >= 0 && p[2] >= 0;
   };
@@ -327,15 +343,9 @@ void ownedItems(const Layout& L, ChunkTopology& ch) {
           ch.vertexFlags.push_back(flags);
         }
         for (int a = 0; a < 3; ++a) {
-          const auto o = cube::otherAxes(a);
-          I3 pb = p, pc = p, pbc = p;
-          ++pb[o[0]];
-          ++pc[o[1]];
-          ++pbc[o[0]];
-          ++pbc[o[1]];
-          if (!inGrid(pbc)) continue;
-          const int s0 = sp, s1 = s(pb), s2 = s(pc), s3 = s(pbc);
-          if (s0 == s1 && s0 == s2 && s0 == s3) continue;
+          const std::array<I3, 4> q = faceCorners(p, a);
+          if (!inGrid(q[3])) continue;
+          if (s(q[1]) == sp && s(q[2]) == sp && s(q[3]) == sp) continue;
           ch.faceKey.push_back(key * 3 + static_cast<std::uint32_t>(a));
         }
       }
@@ -353,14 +363,9 @@ void ownedItems(const Layout& L, ChunkTopology& ch) {
 
 /// Whether the face at grid point p across `axis` has its four crossings (diagonal points share a sign).
 bool ambiguousFace(const ChunkTopology& ch, const I3& p, int axis) {
-  const auto o = cube::otherAxes(axis);
-  I3 pb = p, pc = p, pbc = p;
-  ++pb[o[0]];
-  ++pc[o[1]];
-  ++pbc[o[0]];
-  ++pbc[o[1]];
-  auto s = [&](const I3& x) { return ch.sign[static_cast<std::size_t>(ch.region.index(x))]; };
-  return s(p) == s(pbc) && s(pb) == s(pc) && s(p) != s(pb);
+  const std::array<I3, 4> q = faceCorners(p, axis);
+  const int s0 = signAt(ch, q[0]), s1 = signAt(ch, q[1]);
+  return s0 == signAt(ch, q[3]) && s1 == signAt(ch, q[2]) && s0 != s1;
 }
 
 I3 keyPoint(const ChunkTopology& ch, std::int64_t B, std::uint32_t pointKeyValue) {
