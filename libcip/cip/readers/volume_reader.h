@@ -27,6 +27,7 @@ struct VolumeReadOptions {
   int brickCells = 32;           ///< VDB brick size in cells per side
   int apron = 1;                 ///< VDB points kept around each brick (VdbReadOptions::apron)
   std::size_t maxBytes = DenseGrid::defaultMaxBytes();  ///< limit on the samples held, as doubles
+  int frame = -1;  ///< 4-D volumes: the frame (0-based) to read; -1 = the file must hold one frame
 };
 
 /// Reads any supported volume. Throws cip::Error (message starting with the path) on any failure; a raw file
