@@ -97,16 +97,18 @@ def extract(volume_or_path, level=None, *, spacing=None, origin=None, method="fi
 
 
 def render(model, eye=None, look=None, up=None, fov=35.0, size=(800, 600), *, shading="phong", spp=1,
-           shadows=False, ortho=False, curvature_range=None, threads=0, progress=None):
+           shadows=False, ortho=False, curvature_range=None, threads=0, progress=None, space=None):
     """Renders a model as the `raycast` command does; returns its EXR channels as a dict of H x W arrays.
 
     Keys: 'R', 'G', 'B', 'A' (linear, premultiplied), 'Z' (distance along the pixel-centre ray, inf where it
     misses), 'N.x', 'N.y', 'N.z' (world normal), all float32, and 'id' (uint32 cell index, 0xFFFFFFFF where
     it misses). Unset eye, look and up frame the model as the command does; shading is 'phong', 'cells',
     'normal', 'depth', 'curvature' or 'isophotes'. The same arguments give the same image as the command.
+    Camera and normals are in the model's world (`model.affine`); space='ras', 'las' or 'lps' converts it,
+    as `raycast --space` does.
     """
     if not isinstance(model, Model):
         raise TypeError("render needs a cip.Model, got %s" % type(model).__name__)
     width, height = size
     return _cip._render(model, eye, look, up, float(fov), (int(width), int(height)), shading, int(spp),
-                        bool(shadows), bool(ortho), curvature_range, int(threads), progress)
+                        bool(shadows), bool(ortho), curvature_range, int(threads), progress, space)
