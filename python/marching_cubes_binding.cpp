@@ -20,18 +20,26 @@ namespace cip::python {
 
 namespace {
 
+/// A numpy array of `Scalar` over the vector's own buffer (moved into a capsule that the array keeps): no
+/// copy.
+template <typename Scalar, typename T>
+py::array_t<Scalar> own(std::vector<T>&& data, std::vector<py::ssize_t> shape) {
+  static_assert(sizeof(T) % sizeof(Scalar) == 0);
+  if (data.empty()) return py::array_t<Scalar>(shape);
+  auto* owned = new std::vector<T>(std::move(data));
+  py::capsule base(owned, [](void* p) { delete static_cast<std::vector<T>*>(p); });
+  return py::array_t<Scalar>(shape, reinterpret_cast<const Scalar*>(owned->data()), base);
+}
 template <typename T, std::size_t N>
-py::array_t<T> rows(const std::vector<std::array<T, N>>& data) {
-  py::array_t<T> out({static_cast<py::ssize_t>(data.size()), static_cast<py::ssize_t>(N)});
-  if (!data.empty())
-    std::copy(data.begin(), data.end(), reinterpret_cast<std::array<T, N>*>(out.mutable_data()));
-  return out;
+py::array_t<T> rows(std::vector<std::array<T, N>>&& data) {
+  const auto n = static_cast<py::ssize_t>(data.size());
+  return own<T>(std::move(data), {n, static_cast<py::ssize_t>(N)});
 }
 
-py::tuple toTuple(const LewinerMesh& mesh) {
-  py::array_t<float> values(static_cast<py::ssize_t>(mesh.values.size()));
-  std::copy(mesh.values.begin(), mesh.values.end(), values.mutable_data());
-  return py::make_tuple(rows(mesh.vertices), rows(mesh.faces), rows(mesh.normals), values);
+py::tuple toTuple(LewinerMesh&& mesh) {
+  const auto n = static_cast<py::ssize_t>(mesh.values.size());
+  return py::make_tuple(rows(std::move(mesh.vertices)), rows(std::move(mesh.faces)),
+                        rows(std::move(mesh.normals)), own<float>(std::move(mesh.values), {n}));
 }
 
 /// The level scikit-image uses: `level` as a double, or the middle of the float32 range computed as numpy
@@ -76,7 +84,7 @@ py::tuple marchingCubes(const py::array& volume, const py::object& level, int st
         mesh = lewinerMarchingCubes(samples, options);
       },
       progress);
-  return toTuple(mesh);
+  return toTuple(std::move(mesh));
 }
 
 /// scikit-image's remove_degenerate_faces on float32 vertices (already scaled by the spacing).
@@ -105,7 +113,7 @@ py::tuple removeDegenerate(const py::array_t<float, py::array::c_style | py::arr
     py::gil_scoped_release release;
     removeDegenerateFaces(mesh);
   }
-  return toTuple(mesh);
+  return toTuple(std::move(mesh));
 }
 
 }  // namespace

@@ -37,6 +37,7 @@ class Marcher {
                                  double level);
   void classicCell();
   void lewinerCell();
+  void reserveFor(double done);
   LewinerMesh finish(bool descent);
 
  private:
@@ -63,8 +64,9 @@ class Marcher {
   int index_ = 0;           ///< bit c set for v_[c] > 0
   bool centreReady_ = false;
   double centre_[3] = {}, centreGrad_[3] = {};
-  std::vector<float> positions_, normals_, values_;
-  std::vector<std::int32_t> faces_;
+  LewinerMesh out_;  ///< positions and normals in x, y, z order until finish()
+  std::array<std::int32_t, 3> face_{};
+  int corners_ = 0;  ///< corners of face_ filled
 };
 
 void Marcher::setCell(std::int64_t x, std::int64_t y, std::int64_t z, const float (&samples)[8],
@@ -101,17 +103,17 @@ void Marcher::triangles(const std::int8_t* edges, int count) {
 }
 
 std::int32_t Marcher::newVertex(double x, double y, double z) {
-  const std::size_t n = values_.size();
+  const std::size_t n = out_.values.size();
   if (n >= static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()))
     throw Error("the mesh has more vertices than int32 faces can index");
-  positions_.insert(positions_.end(), {static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)});
-  normals_.insert(normals_.end(), {0.0f, 0.0f, 0.0f});
-  values_.push_back(0.0f);
+  out_.vertices.push_back({static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)});
+  out_.normals.push_back({0.0f, 0.0f, 0.0f});
+  out_.values.push_back(0.0f);
   return static_cast<std::int32_t>(n);
 }
 
 void Marcher::addGradient(std::int32_t vertex, float gx, float gy, float gz) {
-  float* n = &normals_[3 * static_cast<std::size_t>(vertex)];
+  auto& n = out_.normals[static_cast<std::size_t>(vertex)];
   n[0] += gx;
   n[1] += gy;
   n[2] += gz;
@@ -181,8 +183,12 @@ void Marcher::edgeVertex(int edge) {
       g[1][i] = static_cast<float>(grad_[b][i] * sb);
     }
   }
-  faces_.push_back(vertex);
-  float& value = values_[static_cast<std::size_t>(vertex)];
+  face_[static_cast<std::size_t>(corners_++)] = vertex;
+  if (corners_ == 3) {
+    out_.faces.push_back(face_);
+    corners_ = 0;
+  }
+  float& value = out_.values[static_cast<std::size_t>(vertex)];
   if (range_ > value) value = static_cast<float>(range_);
   if (edge != 12) {
     addGradient(vertex, g[0][0], g[0][1], g[0][2]);
@@ -361,31 +367,38 @@ void Marcher::classicCell() {
   if (count > 0) triangles(row, count);
 }
 
+/// When the output so far, scaled to the whole volume (`done` = fraction of layers walked), would not fit,
+/// reserves a quarter more than that: a few reallocations instead of one per doubling, each of which copies
+/// and touches fresh memory.
+void Marcher::reserveFor(double done) {
+  if (!(done > 0.0 && done < 1.0)) return;
+  const auto grow = [done](auto& v) {
+    const double projected = static_cast<double>(v.size()) / done;
+    if (static_cast<double>(v.capacity()) < projected)
+      v.reserve(static_cast<std::size_t>(1.25 * projected) + 256);
+  };
+  grow(out_.vertices);
+  grow(out_.normals);
+  grow(out_.values);
+  grow(out_.faces);
+}
+
 /// Flips x, y, z to array axis order, normalises the normals (length in double, as scikit-image) and
 /// reverses the faces for 'descent'.
 LewinerMesh Marcher::finish(bool descent) {
-  LewinerMesh mesh;
-  const std::size_t n = values_.size();
-  mesh.vertices.resize(n);
-  mesh.normals.resize(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* p = &positions_[3 * i];
-    const float* g = &normals_[3 * i];
+  for (std::size_t i = 0; i < out_.values.size(); ++i) {
+    auto& p = out_.vertices[i];
+    auto& g = out_.normals[i];
     double length = 0.0;
     for (int a = 0; a < 3; ++a) length += static_cast<double>(g[a]) * static_cast<double>(g[a]);
     if (length > 0.0) length = 1.0 / std::pow(length, 0.5);  // as scikit-image, not sqrt
-    mesh.vertices[i] = {p[2], p[1], p[0]};
-    mesh.normals[i] = {static_cast<float>(g[2] * length), static_cast<float>(g[1] * length),
-                       static_cast<float>(g[0] * length)};
+    std::swap(p[0], p[2]);
+    g = {static_cast<float>(g[2] * length), static_cast<float>(g[1] * length),
+         static_cast<float>(g[0] * length)};
   }
-  mesh.values = std::move(values_);
-  mesh.faces.resize(faces_.size() / 3);
-  for (std::size_t t = 0; t < mesh.faces.size(); ++t) {
-    const std::int32_t* f = &faces_[3 * t];
-    mesh.faces[t] = descent ? std::array<std::int32_t, 3>{f[2], f[1], f[0]}
-                            : std::array<std::int32_t, 3>{f[0], f[1], f[2]};
-  }
-  return mesh;
+  if (descent)
+    for (auto& f : out_.faces) std::swap(f[0], f[2]);
+  return std::move(out_);
 }
 
 template <typename T>
@@ -410,10 +423,16 @@ LewinerMesh march(const StridedSamples& volume, const LewinerOptions& options) {
                             sample(x + st, y, z + st),
                             sample(x + st, y + st, z + st),
                             sample(x, y + st, z + st)};
+        // Cells with all corners above the level, or none (case 0 of both tables), add nothing.
+        int above = 0;
+        for (float c : v) above += static_cast<double>(c) > options.level ? 1 : 0;
+        if (above == 0 || above == 8) continue;
         marcher.setCell(x, y, z, v, options.level);
         options.classic ? marcher.classicCell() : marcher.lewinerCell();
       }
-    if (options.progress) options.progress(static_cast<double>(z + st) / static_cast<double>(nz - 1));
+    const double done = static_cast<double>(z + st) / static_cast<double>(nz - 1);
+    marcher.reserveFor(done);
+    if (options.progress) options.progress(done);
   }
   return marcher.finish(options.descent);
 }
