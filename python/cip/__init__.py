@@ -59,6 +59,9 @@ def marching_cubes(volume, level=None, *, spacing=(1.0, 1.0, 1.0), gradient_dire
     step_size = int(step_size)
     if step_size < 1:
         raise ValueError("step_size must be at least one.")
+    volume = np.asarray(volume)
+    if volume.dtype.kind == "f" and volume.dtype.itemsize > 8:
+        volume = volume.astype(np.float32)  # long double: one rounding to float32, as scikit-image's
     volume = _volume(volume)
     if mask is not None:
         mask = np.asarray(mask)

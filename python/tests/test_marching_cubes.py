@@ -160,7 +160,7 @@ def test_default_level_is_mid_range():
 
 
 @pytest.mark.parametrize("dtype", [bool, np.uint8, np.int8, np.int16, np.uint16, np.int32, np.uint32, np.int64,
-                                   np.uint64, np.float16, np.float32, np.float64, ">f4", "<i2"])
+                                   np.uint64, np.float16, np.float32, np.float64, np.longdouble, ">f4", "<i2", ">f8"])
 def test_any_numeric_dtype(dtype):
     volume = (sphere() * 40).astype(dtype)
     level = 0.5 if dtype is bool else 20.5
