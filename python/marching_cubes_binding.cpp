@@ -56,7 +56,7 @@ double chooseLevel(const StridedSamples& samples, const std::optional<double>& l
 /// (verts (V, 3) float32 in array axis order and index units, faces (F, 3) int32, normals (V, 3) float32,
 /// values (V,) float32), exactly as scikit-image's before its spacing and degenerate-face steps.
 py::tuple marchingCubes(const py::array& volume, const py::object& level, int stepSize,
-                        const std::string& method, bool descent, const py::object& mask,
+                        const std::string& method, bool descent, const py::object& mask, int threads,
                         const py::object& progress) {
   if (method != "lewiner" && method != "lorensen")
     throw Error("method should be one of 'lewiner' or 'lorensen'.");
@@ -73,6 +73,7 @@ py::tuple marchingCubes(const py::array& volume, const py::object& level, int st
   options.stepSize = stepSize;
   options.classic = method == "lorensen";
   options.descent = descent;
+  options.threads = threads;
   // Converted here, with the GIL: the work runs without it.
   const std::optional<double> requested =
       level.is_none() ? std::nullopt : std::optional<double>(py::float_(level).cast<double>());
@@ -120,7 +121,8 @@ py::tuple removeDegenerate(const py::array_t<float, py::array::c_style | py::arr
 
 void bindMarchingCubes(py::module_& m) {
   m.def("_marching_cubes", &marchingCubes, py::arg("volume"), py::arg("level"), py::arg("step_size"),
-        py::arg("method"), py::arg("descent"), py::arg("mask"), py::arg("progress") = py::none());
+        py::arg("method"), py::arg("descent"), py::arg("mask"), py::arg("threads") = 0,
+        py::arg("progress") = py::none());
   m.def("_remove_degenerate_faces", &removeDegenerate, py::arg("verts"), py::arg("faces"), py::arg("normals"),
         py::arg("values"));
 }

@@ -240,6 +240,27 @@ TEST(LewinerMarchingCubes, AnyLayoutAndIntegerTypeGivesTheSameMesh) {
             lewinerMarchingCubes(asFloat.view(), options(3.5)).faces);
 }
 
+TEST(LewinerMarchingCubes, ThreadCountDoesNotChangeTheMesh) {
+  // Noise through every case, with enough layers for many slabs: the slabs' shared planes, their vertices'
+  // normals (float sums in the serial order) and values must come out as the serial walk's.
+  std::mt19937 random(11);
+  std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+  const Volume v({90, 17, 13}, [&](double, double, double) { return uniform(random); });
+  for (bool classic : {false, true}) {
+    LewinerOptions o = options(0.1, 1, classic);
+    o.threads = 1;
+    const LewinerMesh serial = lewinerMarchingCubes(v.view(), o);
+    for (int threads : {0, 2, 3}) {
+      o.threads = threads;
+      const LewinerMesh parallel = lewinerMarchingCubes(v.view(), o);
+      EXPECT_EQ(parallel.vertices, serial.vertices);
+      EXPECT_EQ(parallel.faces, serial.faces);
+      EXPECT_EQ(parallel.normals, serial.normals);
+      EXPECT_EQ(parallel.values, serial.values);
+    }
+  }
+}
+
 TEST(LewinerMarchingCubes, MaskLimitsTheCells) {
   const Volume v = sphere(24, 8.2);
   std::vector<unsigned char> mask(v.data.size(), 0);

@@ -46,9 +46,9 @@ def marching_cubes(volume, level=None, *, spacing=(1.0, 1.0, 1.0), gradient_dire
     normals (V, 3) float32, values (V,) float32). `level` defaults to the middle of the data's range;
     `step_size` cells of step_size^3 samples; `mask` a boolean array of the volume's shape (a cell is visited
     where the mask is true at its far corner, as in scikit-image); allow_degenerate=False merges the vertices
-    of zero-area triangles and drops those triangles. NaN or infinite samples raise cip.Error. The walk is
-    serial, as scikit-image's (`threads` is accepted and ignored); it runs without the GIL, reports progress
-    through `progress(fraction)` and stops on Ctrl-C.
+    of zero-area triangles and drops those triangles. NaN or infinite samples raise cip.Error. Without a mask,
+    slabs of cells are walked on `threads` threads (0 = all) and joined into exactly the serial walk's result;
+    the work runs without the GIL, reports progress through `progress(fraction)` and stops on Ctrl-C.
     """
     if method not in ("lewiner", "lorensen"):
         raise ValueError("method should be one of 'lewiner' or 'lorensen'.")
@@ -70,7 +70,8 @@ def marching_cubes(volume, level=None, *, spacing=(1.0, 1.0, 1.0), gradient_dire
         if mask.dtype != np.bool_:
             mask = mask.astype(np.bool_)
     verts, faces, normals, values = _cip._marching_cubes(volume, level, step_size, method,
-                                                         gradient_direction == "descent", mask, progress)
+                                                         gradient_direction == "descent", mask, int(threads),
+                                                         progress)
     if not len(verts):
         raise RuntimeError("No surface found at the given iso value.")
     if not np.array_equal(spacing, (1, 1, 1)):

@@ -186,6 +186,19 @@ def test_layouts_give_the_same_mesh():
             np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("name", ["gyroid", "noise", "int16"])
+def test_threads_give_the_same_arrays(name):
+    """Slabs walked in parallel are joined into the serial walk's arrays, bit for bit."""
+    field, level = CASES[name]
+    volume = np.concatenate([field()] * 3)  # enough layers for several slabs
+    serial = cip.marching_cubes(volume, level, threads=1)
+    for threads in (0, 2, 3):
+        for a, b in zip(cip.marching_cubes(volume, level, threads=threads), serial):
+            np.testing.assert_array_equal(a, b)
+    for a, b in zip(serial, skimage_measure.marching_cubes(volume, level)):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_progress_is_reported():
     fractions = []
     cip.marching_cubes(gyroid(), 0.0, progress=fractions.append)

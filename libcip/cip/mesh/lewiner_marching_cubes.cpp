@@ -1,6 +1,10 @@
 #include "cip/mesh/lewiner_marching_cubes.h"
 
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <string>
@@ -20,6 +24,18 @@ constexpr double kEps = std::numeric_limits<double>::epsilon();
 constexpr int kCorner[8][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0},
                                {0, 0, 1}, {1, 0, 1}, {1, 1, 1}, {0, 1, 1}};
 
+/// What a slab of cell layers adds, before it is joined to the slabs below it: its vertices, numbered from 0
+/// in the serial walk's order, and its faces, where -2 - n names the n-th vertex of its bottom plane, which
+/// the slab below creates (`bottomSlots`: that vertex's slot in the slab below's `top` layer); the gradients
+/// and values those vertices get from this slab, in the order the serial walk adds them.
+struct Slab {
+  LewinerMesh mesh;               ///< x, y, z order, normals not yet normalised
+  std::vector<std::int32_t> top;  ///< slots of the slab's top plane (vertices created by its last layer)
+  std::vector<std::size_t> bottomSlots;
+  std::vector<float> bottomValues;
+  std::vector<std::pair<std::int32_t, std::array<float, 3>>> bottomGradients;
+};
+
 /// The state of one pass: the current cell, the two layers of edge-to-vertex slots and the output (in
 /// scikit-image's internal x, y, z order; flipped to array axis order at the end).
 class Marcher {
@@ -38,7 +54,20 @@ class Marcher {
   void classicCell();
   void lewinerCell();
   void reserveFor(double done);
-  LewinerMesh finish(bool descent);
+  /// From now on, vertices on the bottom plane of layer `z` belong to the slab below (see Slab).
+  void bottomFromBelow(std::int64_t z) {
+    external_ = true;
+    firstZ_ = z;
+  }
+  Slab take() {
+    Slab slab;
+    slab.mesh = std::move(out_);
+    slab.top = std::move(layer2_);
+    slab.bottomSlots = std::move(bottomSlots_);
+    slab.bottomValues = std::move(bottomValues_);
+    slab.bottomGradients = std::move(bottomGradients_);
+    return slab;
+  }
 
  private:
   void triangles(const std::int8_t* edges, int count);
@@ -64,7 +93,12 @@ class Marcher {
   int index_ = 0;           ///< bit c set for v_[c] > 0
   bool centreReady_ = false;
   double centre_[3] = {}, centreGrad_[3] = {};
-  LewinerMesh out_;  ///< positions and normals in x, y, z order until finish()
+  LewinerMesh out_;  ///< positions and normals in x, y, z order until orient()
+  bool external_ = false;
+  std::int64_t firstZ_ = 0;
+  std::vector<std::size_t> bottomSlots_;
+  std::vector<float> bottomValues_;
+  std::vector<std::pair<std::int32_t, std::array<float, 3>>> bottomGradients_;
   std::array<std::int32_t, 3> face_{};
   int corners_ = 0;  ///< corners of face_ filled
 };
@@ -113,6 +147,7 @@ std::int32_t Marcher::newVertex(double x, double y, double z) {
 }
 
 void Marcher::addGradient(std::int32_t vertex, float gx, float gy, float gz) {
+  if (vertex < 0) return bottomGradients_.push_back({-2 - vertex, {gx, gy, gz}});
   auto& n = out_.normals[static_cast<std::size_t>(vertex)];
   n[0] += gx;
   n[1] += gy;
@@ -157,18 +192,23 @@ void Marcher::edgeVertex(int edge) {
   } else {
     kind = 3;
   }
-  std::int32_t& vertex = (*layer)[static_cast<std::size_t>(4 * slot + kind)];
+  const auto key = static_cast<std::size_t>(4 * slot + kind);
+  std::int32_t& vertex = (*layer)[key];
   float g[2][3] = {};
   if (edge == 12) {
     if (!centreReady_) centreVertex();
-    if (vertex < 0) vertex = newVertex(centre_[0], centre_[1], centre_[2]);
+    if (vertex == -1) vertex = newVertex(centre_[0], centre_[1], centre_[2]);
     addGradient(vertex, static_cast<float>(centreGrad_[0]), static_cast<float>(centreGrad_[1]),
                 static_cast<float>(centreGrad_[2]));
   } else {
     const int a = kEdgeX[edge][0] + 2 * kEdgeY[edge][0] + 4 * kEdgeZ[edge][0];
     const int b = kEdgeX[edge][1] + 2 * kEdgeY[edge][1] + 4 * kEdgeZ[edge][1];
     const double wa = 1.0 / (kEps + std::abs(byBits_[a])), wb = 1.0 / (kEps + std::abs(byBits_[b]));
-    if (vertex < 0) {
+    if (vertex == -1 && external_ && edge < 4 && z_ == firstZ_) {
+      vertex = -2 - static_cast<std::int32_t>(bottomSlots_.size());
+      bottomSlots_.push_back(key);
+      bottomValues_.push_back(0.0f);
+    } else if (vertex == -1) {
       const double fx = kEdgeX[edge][0] * wa + kEdgeX[edge][1] * wb;
       const double fy = kEdgeY[edge][0] * wa + kEdgeY[edge][1] * wb;
       const double fz = kEdgeZ[edge][0] * wa + kEdgeZ[edge][1] * wb;
@@ -188,7 +228,8 @@ void Marcher::edgeVertex(int edge) {
     out_.faces.push_back(face_);
     corners_ = 0;
   }
-  float& value = out_.values[static_cast<std::size_t>(vertex)];
+  float& value = vertex >= 0 ? out_.values[static_cast<std::size_t>(vertex)]
+                             : bottomValues_[static_cast<std::size_t>(-2 - vertex)];
   if (range_ > value) value = static_cast<float>(range_);
   if (edge != 12) {
     addGradient(vertex, g[0][0], g[0][1], g[0][2]);
@@ -385,10 +426,10 @@ void Marcher::reserveFor(double done) {
 
 /// Flips x, y, z to array axis order, normalises the normals (length in double, as scikit-image) and
 /// reverses the faces for 'descent'.
-LewinerMesh Marcher::finish(bool descent) {
-  for (std::size_t i = 0; i < out_.values.size(); ++i) {
-    auto& p = out_.vertices[i];
-    auto& g = out_.normals[i];
+void orient(LewinerMesh& mesh, bool descent) {
+  for (std::size_t i = 0; i < mesh.values.size(); ++i) {
+    auto& p = mesh.vertices[i];
+    auto& g = mesh.normals[i];
     double length = 0.0;
     for (int a = 0; a < 3; ++a) length += static_cast<double>(g[a]) * static_cast<double>(g[a]);
     if (length > 0.0) length = 1.0 / std::pow(length, 0.5);  // as scikit-image, not sqrt
@@ -397,20 +438,24 @@ LewinerMesh Marcher::finish(bool descent) {
          static_cast<float>(g[0] * length)};
   }
   if (descent)
-    for (auto& f : out_.faces) std::swap(f[0], f[2]);
-  return std::move(out_);
+    for (auto& f : mesh.faces) std::swap(f[0], f[2]);
 }
 
+/// Walks cell layers [first, last) (layer l at z = l * stepSize), as scikit-image's loop does; `done` is
+/// called after each layer with the number of layers walked so far.
 template <typename T>
-LewinerMesh march(const StridedSamples& volume, const LewinerOptions& options) {
+Slab march(const StridedSamples& volume, const LewinerOptions& options, std::int64_t first, std::int64_t last,
+           const std::function<void(std::int64_t)>& done) {
   // scikit-image's x, y, z are array axes 2, 1, 0.
-  const std::int64_t nx = volume.shape[2], ny = volume.shape[1], nz = volume.shape[0];
+  const std::int64_t nx = volume.shape[2], ny = volume.shape[1];
   const int st = options.stepSize;
   Marcher marcher(nx, ny, st);
+  if (first > 0) marcher.bottomFromBelow(first * st);
   const auto sample = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
     return loadFloat32<T>(volume.at(z, y, x));
   };
-  for (std::int64_t z = 0; z + st <= nz - 1; z += st) {
+  for (std::int64_t layer = first; layer < last; ++layer) {
+    const std::int64_t z = layer * st;
     marcher.newLayer();
     for (std::int64_t y = 0; y + st <= ny - 1; y += st)
       for (std::int64_t x = 0; x + st <= nx - 1; x += st) {
@@ -430,11 +475,89 @@ LewinerMesh march(const StridedSamples& volume, const LewinerOptions& options) {
         marcher.setCell(x, y, z, v, options.level);
         options.classic ? marcher.classicCell() : marcher.lewinerCell();
       }
-    const double done = static_cast<double>(z + st) / static_cast<double>(nz - 1);
-    marcher.reserveFor(done);
-    if (options.progress) options.progress(done);
+    marcher.reserveFor(static_cast<double>(layer + 1 - first) / static_cast<double>(last - first));
+    done(1);
   }
-  return marcher.finish(options.descent);
+  return marcher.take();
+}
+
+/// Joins the slabs in order: vertex and face lists concatenated with offsets, each slab's bottom-plane
+/// references resolved in the top layer of the slab below, and their gradients added after the ones from
+/// below, in the serial walk's order (the float sums then equal the serial walk's). False if a reference is
+/// not in the slab below (cannot happen without a mask; the caller then walks serially).
+bool join(std::vector<Slab>& slabs, LewinerMesh& out) {
+  std::size_t vertices = 0, faces = 0;
+  for (const Slab& s : slabs) vertices += s.mesh.vertices.size(), faces += s.mesh.faces.size();
+  if (vertices >= static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()))
+    throw Error("the mesh has more vertices than int32 faces can index");
+  out.vertices.reserve(vertices);
+  out.normals.reserve(vertices);
+  out.values.reserve(vertices);
+  out.faces.reserve(faces);
+  std::int32_t offset = 0, below = 0;
+  std::vector<std::int32_t> resolved;
+  for (std::size_t k = 0; k < slabs.size(); ++k) {
+    Slab& s = slabs[k];
+    resolved.resize(s.bottomSlots.size());
+    for (std::size_t n = 0; n < s.bottomSlots.size(); ++n) {
+      const std::int32_t v = k > 0 ? slabs[k - 1].top[s.bottomSlots[n]] : -1;
+      if (v < 0) return false;
+      resolved[n] = below + v;
+      float& value = out.values[static_cast<std::size_t>(resolved[n])];
+      value = std::max(value, s.bottomValues[n]);
+    }
+    for (const auto& [n, g] : s.bottomGradients) {
+      auto& normal = out.normals[static_cast<std::size_t>(resolved[static_cast<std::size_t>(n)])];
+      for (int a = 0; a < 3; ++a) normal[a] += g[a];
+    }
+    for (auto f : s.mesh.faces) {
+      for (auto& v : f) v = v >= 0 ? v + offset : resolved[static_cast<std::size_t>(-2 - v)];
+      out.faces.push_back(f);
+    }
+    out.vertices.insert(out.vertices.end(), s.mesh.vertices.begin(), s.mesh.vertices.end());
+    out.normals.insert(out.normals.end(), s.mesh.normals.begin(), s.mesh.normals.end());
+    out.values.insert(out.values.end(), s.mesh.values.begin(), s.mesh.values.end());
+    below = offset;
+    offset += static_cast<std::int32_t>(s.mesh.vertices.size());
+    s.mesh = LewinerMesh();  // its top layer is needed for the next slab
+    if (k > 0) slabs[k - 1] = Slab();
+  }
+  return true;
+}
+
+template <typename T>
+LewinerMesh marchAll(const StridedSamples& volume, const LewinerOptions& options) {
+  const std::int64_t layers = (volume.shape[0] - 1) / options.stepSize;
+  std::atomic<std::int64_t> walked{0};
+  const auto done = [&](std::int64_t n) {
+    const std::int64_t total = walked += n;
+    if (options.progress) options.progress(static_cast<double>(total) / static_cast<double>(layers));
+  };
+  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
+  // One slab (the serial walk) with a mask, which can leave a shared plane's vertex to the slab above, or
+  // with one thread.
+  const int workers = arena.max_concurrency();
+  const std::int64_t slabs =
+      options.mask || workers == 1 ? 1 : std::min<std::int64_t>(layers / 8, 4 * workers);
+  LewinerMesh out;
+  if (slabs > 1) {
+    std::vector<Slab> parts(static_cast<std::size_t>(slabs));
+    arena.execute([&] {
+      tbb::parallel_for(std::int64_t{0}, slabs, [&](std::int64_t k) {
+        parts[static_cast<std::size_t>(k)] =
+            march<T>(volume, options, layers * k / slabs, layers * (k + 1) / slabs, done);
+      });
+    });
+    if (join(parts, out)) {
+      orient(out, options.descent);
+      return out;
+    }
+    out = LewinerMesh();
+    walked = 0;
+  }
+  out = march<T>(volume, options, 0, layers, done).mesh;
+  orient(out, options.descent);
+  return out;
 }
 
 }  // namespace
@@ -450,7 +573,7 @@ LewinerMesh lewinerMarchingCubes(const StridedSamples& volume, const LewinerOpti
         options.mask->type != ElementType::Int8)
       throw Error("the mask must be an array of bool");
   }
-  return visitElementType(volume.type, [&](auto tag) { return march<decltype(tag)>(volume, options); });
+  return visitElementType(volume.type, [&](auto tag) { return marchAll<decltype(tag)>(volume, options); });
 }
 
 void removeDegenerateFaces(LewinerMesh& mesh) {

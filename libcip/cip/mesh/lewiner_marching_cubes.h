@@ -11,7 +11,9 @@
 /// (w = 1 / (eps + |value - level|)), i.e. the linear crossing; the interior vertex of the tilings that need
 /// one is the same weighted mean of the eight corners. Ambiguous faces are decided by the asymptotic decider
 /// and the interior by Lewiner's internal test (method 'lewiner'); 'lorensen' uses the classic 256-case
-/// table. Serial: the traversal order defines the vertex numbering.
+/// table. The traversal order defines the vertex numbering: slabs of layers walked in parallel are
+/// joined in that order, the vertices of their shared planes and the float sums of their normals resolved as
+/// the serial walk has them.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -30,8 +32,12 @@ struct LewinerOptions {
   /// Optional boolean mask of the volume's shape: a cell is processed only where the mask is true at its
   /// far corner (+stepSize on every axis), as scikit-image tests it. nullptr = every cell.
   const StridedSamples* mask = nullptr;
-  /// Called with the fraction done after each layer of cells, if set; may throw to stop the walk.
+  /// Called with the fraction done after each layer of cells, if set, from any of the worker threads; may
+  /// throw to stop the walk.
   std::function<void(double)> progress;
+  /// Worker threads (TBB), 0 = all. Without a mask, slabs of cell layers are walked in parallel and joined so
+  /// that the result is the serial walk's, bit for bit, for any number of threads.
+  int threads = 0;
 };
 
 /// scikit-image's four outputs: vertices in array axis order (index units, float32), faces as vertex indices,
