@@ -29,8 +29,9 @@ constexpr int kCorner[8][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0},
 /// the slab below creates (`bottomSlots`: that vertex's slot in the slab below's `top` layer); the gradients
 /// and values those vertices get from this slab, in the order the serial walk adds them.
 struct Slab {
-  LewinerMesh mesh;               ///< x, y, z order, normals not yet normalised
-  std::vector<std::int32_t> top;  ///< slots of the slab's top plane (vertices created by its last layer)
+  LewinerMesh mesh;  ///< x, y, z order, normals not yet normalised
+  /// The filled slots of the slab's top plane (slot, vertex), by slot: what the slab above refers to.
+  std::vector<std::pair<std::size_t, std::int32_t>> top;
   std::vector<std::size_t> bottomSlots;
   std::vector<float> bottomValues;
   std::vector<std::pair<std::int32_t, std::array<float, 3>>> bottomGradients;
@@ -47,8 +48,8 @@ class Marcher {
     std::swap(layer1_, layer2_);
     std::fill(layer2_.begin(), layer2_.end(), -1);
   }
-  /// Kept out of line: inlined into the sample reading, GCC 12's SLP vectorizer at -O3 folded the float32
-  /// rounding of float64 samples away in some cells (the normals then differed from scikit-image's).
+  /// Kept out of line: inlined into the sample reading of float64 volumes, GCC 12 at -O3 (its SLP
+  /// vectorizer) gave normals that differed from scikit-image's in the last bits; out of line they match.
   [[gnu::noinline]] void setCell(std::int64_t x, std::int64_t y, std::int64_t z, const float (&samples)[8],
                                  double level);
   void classicCell();
@@ -62,7 +63,8 @@ class Marcher {
   Slab take() {
     Slab slab;
     slab.mesh = std::move(out_);
-    slab.top = std::move(layer2_);
+    for (std::size_t key = 0; key < layer2_.size(); ++key)
+      if (layer2_[key] >= 0) slab.top.emplace_back(key, layer2_[key]);
     slab.bottomSlots = std::move(bottomSlots_);
     slab.bottomValues = std::move(bottomValues_);
     slab.bottomGradients = std::move(bottomGradients_);
@@ -500,9 +502,12 @@ bool join(std::vector<Slab>& slabs, LewinerMesh& out) {
     Slab& s = slabs[k];
     resolved.resize(s.bottomSlots.size());
     for (std::size_t n = 0; n < s.bottomSlots.size(); ++n) {
-      const std::int32_t v = k > 0 ? slabs[k - 1].top[s.bottomSlots[n]] : -1;
-      if (v < 0) return false;
-      resolved[n] = below + v;
+      if (k == 0) return false;
+      const auto& top = slabs[k - 1].top;
+      const auto it =
+          std::lower_bound(top.begin(), top.end(), std::make_pair(s.bottomSlots[n], std::int32_t{0}));
+      if (it == top.end() || it->first != s.bottomSlots[n]) return false;
+      resolved[n] = below + it->second;
       float& value = out.values[static_cast<std::size_t>(resolved[n])];
       value = std::max(value, s.bottomValues[n]);
     }
