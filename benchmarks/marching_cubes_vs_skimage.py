@@ -2,9 +2,10 @@
 """Side by side: cip.marching_cubes against skimage.measure.marching_cubes on the same arrays.
 
 For each input (a gyroid of N^3 samples as float32, the same as float64 in Fortran order, and a uint8 sphere), times,
-alternately, REPS times each, cip.marching_cubes(volume, level) and skimage.measure.marching_cubes(volume, level)
-(default method 'lewiner'; --method lorensen for the other), prints the medians and the ratio skimage / cip, and
-checks that the two give the same arrays (vertices, faces, normals, values) bit for bit.
+alternately, REPS times each, cip.marching_cubes(volume, level) on all threads and on one, and
+skimage.measure.marching_cubes(volume, level) (default method 'lewiner'; --method lorensen for the other), prints
+the medians and the ratios skimage / cip, and checks that all give the same arrays (vertices, faces, normals,
+values) bit for bit.
 
     PYTHONPATH=build/python /usr/bin/python3 benchmarks/marching_cubes_vs_skimage.py [--build build] [--n 192] [--reps 5]
 """
@@ -48,19 +49,23 @@ def main():
     print("%d^3 samples, method %s, %d runs each (alternating), median wall seconds:" % (n, args.method, args.reps))
     same_everywhere = True
     for name, volume, level in inputs:
-        runs = {"cip": [], "skimage": []}
+        contenders = (("cip", lambda: cip.marching_cubes(volume, level, method=args.method)),
+                      ("cip-1", lambda: cip.marching_cubes(volume, level, method=args.method, threads=1)),
+                      ("skimage", lambda: marching_cubes(volume, level, method=args.method)))
+        runs = {who: [] for who, _ in contenders}
         results = {}
         for _ in range(args.reps):
-            for who, run in (("cip", cip.marching_cubes), ("skimage", marching_cubes)):
+            for who, run in contenders:
                 start = time.perf_counter()
-                results[who] = run(volume, level, method=args.method)
+                results[who] = run()
                 runs[who].append(time.perf_counter() - start)
-        same = all(a.dtype == b.dtype and np.array_equal(a, b) for a, b in zip(results["cip"], results["skimage"]))
+        same = all(a.dtype == b.dtype and np.array_equal(a, b)
+                   for who in ("cip", "cip-1") for a, b in zip(results[who], results["skimage"]))
         same_everywhere &= same
-        median = {k: statistics.median(v) for k, v in runs.items()}
-        print("  %-30s %8d faces   cip %.3f s   skimage %.3f s   skimage/cip %.2f   identical arrays: %s" %
-              (name, len(results["cip"][1]), median["cip"], median["skimage"], median["skimage"] / median["cip"],
-               same))
+        m = {k: statistics.median(v) for k, v in runs.items()}
+        print("  %-30s %8d faces   cip %.3f s (1 thread %.3f s)   skimage %.3f s   skimage/cip %.2f (1 thread %.2f)"
+              "   identical arrays: %s" % (name, len(results["cip"][1]), m["cip"], m["cip-1"], m["skimage"],
+                                           m["skimage"] / m["cip"], m["skimage"] / m["cip-1"], same))
     return 0 if same_everywhere else 1
 
 

@@ -447,7 +447,7 @@ void orient(LewinerMesh& mesh, bool descent) {
 /// called after each layer with the number of layers walked so far.
 template <typename T>
 Slab march(const StridedSamples& volume, const LewinerOptions& options, std::int64_t first, std::int64_t last,
-           const std::function<void(std::int64_t)>& done) {
+           std::int64_t projectTo, const std::function<void(std::int64_t)>& done) {
   // scikit-image's x, y, z are array axes 2, 1, 0.
   const std::int64_t nx = volume.shape[2], ny = volume.shape[1];
   const int st = options.stepSize;
@@ -477,7 +477,7 @@ Slab march(const StridedSamples& volume, const LewinerOptions& options, std::int
         marcher.setCell(x, y, z, v, options.level);
         options.classic ? marcher.classicCell() : marcher.lewinerCell();
       }
-    marcher.reserveFor(static_cast<double>(layer + 1 - first) / static_cast<double>(last - first));
+    marcher.reserveFor(static_cast<double>(layer + 1 - first) / static_cast<double>(projectTo));
     done(1);
   }
   return marcher.take();
@@ -492,17 +492,18 @@ bool join(std::vector<Slab>& slabs, LewinerMesh& out) {
   for (const Slab& s : slabs) vertices += s.mesh.vertices.size(), faces += s.mesh.faces.size();
   if (vertices >= static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()))
     throw Error("the mesh has more vertices than int32 faces can index");
+  // The first slab's arrays, reserved for the whole volume as it grew, take the others.
+  out = std::move(slabs[0].mesh);
   out.vertices.reserve(vertices);
   out.normals.reserve(vertices);
   out.values.reserve(vertices);
   out.faces.reserve(faces);
-  std::int32_t offset = 0, below = 0;
+  std::int32_t below = 0, offset = static_cast<std::int32_t>(out.vertices.size());
   std::vector<std::int32_t> resolved;
-  for (std::size_t k = 0; k < slabs.size(); ++k) {
+  for (std::size_t k = 1; k < slabs.size(); ++k) {
     Slab& s = slabs[k];
     resolved.resize(s.bottomSlots.size());
     for (std::size_t n = 0; n < s.bottomSlots.size(); ++n) {
-      if (k == 0) return false;
       const auto& top = slabs[k - 1].top;
       const auto it =
           std::lower_bound(top.begin(), top.end(), std::make_pair(s.bottomSlots[n], std::int32_t{0}));
@@ -525,7 +526,7 @@ bool join(std::vector<Slab>& slabs, LewinerMesh& out) {
     below = offset;
     offset += static_cast<std::int32_t>(s.mesh.vertices.size());
     s.mesh = LewinerMesh();  // its top layer is needed for the next slab
-    if (k > 0) slabs[k - 1] = Slab();
+    slabs[k - 1] = Slab();
   }
   return true;
 }
@@ -539,18 +540,17 @@ LewinerMesh marchAll(const StridedSamples& volume, const LewinerOptions& options
     if (options.progress) options.progress(static_cast<double>(total) / static_cast<double>(layers));
   };
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
-  // One slab (the serial walk) with a mask, which can leave a shared plane's vertex to the slab above, or
-  // with one thread.
-  const int workers = arena.max_concurrency();
-  const std::int64_t slabs =
-      options.mask || workers == 1 ? 1 : std::min<std::int64_t>(layers / 8, 4 * workers);
+  // One slab per worker; one (the serial walk) with a mask, which can leave a shared plane's vertex to the
+  // slab above. The first slab reserves its arrays for the whole volume, the others for their own layers.
+  const std::int64_t slabs = options.mask ? 1 : std::min<std::int64_t>(layers / 8, arena.max_concurrency());
   LewinerMesh out;
   if (slabs > 1) {
     std::vector<Slab> parts(static_cast<std::size_t>(slabs));
     arena.execute([&] {
       tbb::parallel_for(std::int64_t{0}, slabs, [&](std::int64_t k) {
+        const std::int64_t first = layers * k / slabs, last = layers * (k + 1) / slabs;
         parts[static_cast<std::size_t>(k)] =
-            march<T>(volume, options, layers * k / slabs, layers * (k + 1) / slabs, done);
+            march<T>(volume, options, first, last, k == 0 ? layers : last - first, done);
       });
     });
     if (join(parts, out)) {
@@ -560,7 +560,7 @@ LewinerMesh marchAll(const StridedSamples& volume, const LewinerOptions& options
     out = LewinerMesh();
     walked = 0;
   }
-  out = march<T>(volume, options, 0, layers, done).mesh;
+  out = march<T>(volume, options, 0, layers, layers, done).mesh;
   orient(out, options.descent);
   return out;
 }
