@@ -19,8 +19,9 @@ from skimage.measure import _marching_cubes_lewiner as lewiner
 from skimage.measure import _marching_cubes_lewiner_luts as luts
 
 NOTICE = """\
-// Copyright (C) 2002 Thomas Lewiner (LookUpTable.h); 2012-2016 Almar Klein and the scikit-image team.
-// License: BSD-3-Clause.
+// Copyright: 2009-2018 the scikit-image team (python3-skimage's debian/copyright, Files: *); the tables derive
+// from Thomas Lewiner's LookUpTable.h, published with the paper, as ported by Almar Klein.
+// License: BSD-3-Clause, as in debian/copyright:
 //
 // Redistribution and use in source and binary forms, with or without modification, are permitted provided
 // that the following conditions are met:

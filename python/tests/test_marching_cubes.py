@@ -1,12 +1,16 @@
 """cip.marching_cubes against scikit-image's on the same arrays: the same vertex set (within float32 rounding), the
 same triangles as triples of vertex positions, the same area, normals and values, for both methods and every
 keyword; smooth, integer and noisy data (the ambiguous cases and interior vertices); errors as exceptions."""
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
 import cip
-from conftest import gyroid, sphere
+from conftest import SOURCE_DIR, gyroid, sphere
 
 skimage_measure = pytest.importorskip("skimage.measure")
 
@@ -149,6 +153,15 @@ def test_the_comparison_detects_a_different_mesh():
     lorensen = skimage_measure.marching_cubes(volume, level, method="lorensen")
     with pytest.raises(AssertionError):
         assert_same_mesh(cip.marching_cubes(volume, level), lorensen)
+
+
+def test_committed_tables_are_the_installed_ones(tmp_path):
+    """libcip/cip/mesh/lewiner_tables.inc is what scripts/lewiner_tables.py makes of the installed tables."""
+    out = tmp_path / "tables.inc"
+    subprocess.run([sys.executable, os.path.join(SOURCE_DIR, "scripts", "lewiner_tables.py"), "-o", str(out)],
+                   check=True, capture_output=True)
+    with open(os.path.join(SOURCE_DIR, "libcip", "cip", "mesh", "lewiner_tables.inc"), encoding="utf-8") as f:
+        assert out.read_text(encoding="utf-8") == f.read()
 
 
 def test_default_level_is_mid_range():
