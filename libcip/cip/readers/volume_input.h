@@ -93,6 +93,10 @@ class GzipByteSource : public ByteSource {
 std::int64_t checkVolumeDims(const std::string& path, const std::array<std::int64_t, 3>& dims,
                              std::size_t bytesPerSample, std::size_t maxBytes);
 
+/// The frame of a series of `frames` frames to read: `frame` when it is in range; for frame -1 (none chosen)
+/// 0 when the file holds one frame. Errors are "<path>: ..." and name the frame count.
+std::int64_t checkVolumeFrame(const std::string& path, std::int64_t frames, int frame);
+
 /// Fills the already allocated `grid.values` with samples read from `source`, x fastest, in slabs of a few
 /// MiB. Throws "<path>: data ends after X of N bytes" when the source runs out early.
 void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGrid& grid);
