@@ -470,9 +470,7 @@ std::vector<Piece> dataPieces(const std::string& path, const MetaImageHeader& h,
   return pieces;
 }
 
-}  // namespace
-
-DenseGrid readMetaImage(const std::string& path, std::size_t maxBytes, int frame) {
+DenseGrid readMetaImageFile(const std::string& path, std::size_t maxBytes, int frame) {
   const MetaImageHeader h = readMetaImageHeader(path);
   const std::int64_t chosen = checkVolumeFrame(path, h.frames, frame);
   const std::size_t size = sampleSize(h.type);
@@ -493,6 +491,12 @@ DenseGrid readMetaImage(const std::string& path, std::size_t maxBytes, int frame
   if (h.frames > 1)
     grid.description += ", frame " + std::to_string(chosen) + " of " + std::to_string(h.frames);
   return grid;
+}
+
+}  // namespace
+
+DenseGrid readMetaImage(const std::string& path, std::size_t maxBytes, int frame) {
+  return readPrefixingErrors(path, [&] { return readMetaImageFile(path, maxBytes, frame); });
 }
 
 }  // namespace cip

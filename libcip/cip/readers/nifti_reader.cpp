@@ -100,7 +100,9 @@ std::string datatypeName(int code) {
 /// The NIfTI version (1 or 2) from sizeof_hdr (348 or 540 in either byte order) and whether the header's
 /// fields are in the other byte order than the host's.
 int headerVersion(const unsigned char* bytes, std::size_t size, bool& swap) {
-  if (size < 4) throw Error("too small for a NIfTI header (" + std::to_string(size) + " bytes)");
+  if (size < kNiftiHeaderBytes) {
+    throw Error("too small for a NIfTI header (" + std::to_string(size) + " of at least 348 bytes)");
+  }
   std::int32_t sizeofHdr;
   std::memcpy(&sizeofHdr, bytes, 4);
   const auto swapped = static_cast<std::int32_t>(__builtin_bswap32(static_cast<std::uint32_t>(sizeofHdr)));
@@ -437,9 +439,7 @@ std::unique_ptr<ByteSource> openCompressedFrame(const std::string& path, const N
   return source;
 }
 
-}  // namespace
-
-DenseGrid readNifti(const std::string& path, std::size_t maxBytes, int frame) {
+DenseGrid readNiftiFile(const std::string& path, std::size_t maxBytes, int frame) {
   const std::string headerPath = niftiHeaderPath(path);
   NiftiHeader h = readNiftiHeader(headerPath);
   const std::string dataPath = niftiDataPath(headerPath, h);
@@ -468,6 +468,12 @@ DenseGrid readNifti(const std::string& path, std::size_t maxBytes, int frame) {
   if (h.frames > 1)
     grid.description += ", frame " + std::to_string(chosen) + " of " + std::to_string(h.frames);
   return grid;
+}
+
+}  // namespace
+
+DenseGrid readNifti(const std::string& path, std::size_t maxBytes, int frame) {
+  return readPrefixingErrors(path, [&] { return readNiftiFile(path, maxBytes, frame); });
 }
 
 namespace {

@@ -75,6 +75,16 @@ std::int64_t checkVolumeFrame(const std::string& path, std::int64_t frames, int 
   return frame;
 }
 
+DenseGrid readPrefixingErrors(const std::string& path, const std::function<DenseGrid()>& read) {
+  try {
+    return read();
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    if (what.compare(0, path.size() + 1, path + ":") == 0) throw;
+    throw Error(path + ": " + what);
+  }
+}
+
 std::uint64_t ByteSource::skip(std::uint64_t n) {
   std::vector<unsigned char> buffer(static_cast<std::size_t>(std::min<std::uint64_t>(n, kSlabBytes)));
   std::uint64_t done = 0;
