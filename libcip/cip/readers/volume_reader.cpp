@@ -72,12 +72,25 @@ std::uint64_t volumeFileBytes(const std::string& path) {
   return bytes;
 }
 
+namespace {
+
+/// A .img (or .img.gz) file without the .hdr of a NIfTI pair beside it: raw data when a RawFormat is given.
+bool isLoneImg(const std::string& path) {
+  if (!endsWithNoCase(path, ".img") && !endsWithNoCase(path, ".img.gz")) return false;
+  std::error_code ec;
+  return !std::filesystem::exists(niftiHeaderPath(path), ec);
+}
+
+}  // namespace
+
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options) {
   switch (volumeFormatOf(path)) {
     case VolumeFormat::Nrrd:
       return fromDense(readNrrd(path, options.maxBytes));
     case VolumeFormat::Nifti:
-      return fromDense(readNifti(path, options.maxBytes, options.frame));
+      if (!(options.raw && isLoneImg(path)))
+        return fromDense(readNifti(path, options.maxBytes, options.frame));
+      break;
     case VolumeFormat::MetaImage:
       return fromDense(readMetaImage(path, options.maxBytes, options.frame));
     case VolumeFormat::Vdb: {
