@@ -133,7 +133,8 @@ std::string niftiHeader(int version, std::array<std::int64_t, 3> dims,
 TEST_F(HostileInput, DamagedMedicalHeaders) {
   const std::string mhaDims = "ObjectType = Image\nNDims = 3\nElementType = MET_UCHAR\n";
   const std::vector<std::tuple<std::string, std::string, std::string>> cases = {
-      {"truncated.mha", mhaDims + "DimSize = 2 2 2\nElementSpa", "no ElementDataFile"},
+      {"truncated.mha", mhaDims + "DimSize = 2 2 2\n", "no ElementDataFile"},
+      {"cut_line.mha", mhaDims + "DimSize = 2 2 2\nElementSpa", "line 5 'ElementSpa' is not 'Key = Value'"},
       {"huge.mha", mhaDims + "DimSize = 1000000 1000000 1000000\nElementDataFile = LOCAL\n", "MiB"},
       {"frames.mha",
        "NDims = 4\nDimSize = 2 2 2 4611686018427387904\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n",
