@@ -87,7 +87,8 @@ cases = {
                  {"skip.raw": bytes(range(100)) + values.astype("<i2").tobytes()}),
     "at_end.mhd": (header + "HeaderSize = -1\nElementDataFile = at_end.raw\n",
                    {"at_end.raw": b"some preamble of any length" + values.astype("<i2").tobytes()}),
-    "zlib_local.mha": (header + "CompressedData = True\nElementByteOrderMSB = True\nElementDataFile = LOCAL\n", {}),
+    "zlib_local.mha": (header.replace("ElementSpacing", "ElementSize") +
+                       "CompressedData = True\nElementByteOrderMSB = True\nElementDataFile = LOCAL\n", {}),
 }
 compressed = zlib.compress(values.astype(">i2").tobytes())
 for name, (text, data_files) in cases.items():
