@@ -259,13 +259,13 @@ void patternFiles(const std::string& value, const std::string& path, std::int64_
     pattern = trim(pattern);
     numbers.assign(w.end() - 3, w.end());
   }
-  std::int64_t first = 1, step = 1;
-  if (!numbers.empty()) first = parseInteger(numbers[0], "ElementDataFile");
-  std::int64_t last = first + count - 1;
-  if (numbers.size() >= 2) last = parseInteger(numbers[1], "ElementDataFile");
-  if (numbers.size() >= 3) step = parseInteger(numbers[2], "ElementDataFile");
-  if (step < 1 || step > (std::int64_t(1) << 32) || std::llabs(first) > (std::int64_t(1) << 40) ||
-      first + (count - 1) * step > last)
+  constexpr std::int64_t kLimit = std::int64_t(1) << 40;  // file numbers, steps: far below overflow
+  std::int64_t first = numbers.empty() ? 1 : parseInteger(numbers[0], "ElementDataFile");
+  const std::int64_t step = numbers.size() >= 3 ? parseInteger(numbers[2], "ElementDataFile") : 1;
+  const bool inRange = first >= -kLimit && first <= kLimit && step >= 1 && step <= kLimit;
+  const std::int64_t last =
+      numbers.size() >= 2 ? parseInteger(numbers[1], "ElementDataFile") : (inRange ? first + count - 1 : 0);
+  if (!inRange || first + (count - 1) * step > last)
     throw Error("MetaImage ElementDataFile " + quoted(value) + " does not name " + std::to_string(count) +
                 " files (first, last, step)");
   for (std::int64_t i = 0; i < count; ++i)
@@ -289,8 +289,8 @@ void readDataFiles(const std::string& value, const std::string& text, std::size_
     if (fileDims <= 0 || fileDims > nd) fileDims = nd - 1;
     std::int64_t count = 1;
     for (int d = fileDims; d < nd; ++d) {
-      count *= dimSize[static_cast<std::size_t>(d)];
-      if (count > kMaxDataFiles || dimSize[static_cast<std::size_t>(d)] > kMaxDataFiles)
+      if (dimSize[static_cast<std::size_t>(d)] > kMaxDataFiles ||
+          (count *= dimSize[static_cast<std::size_t>(d)]) > kMaxDataFiles)
         throw Error("MetaImage ElementDataFile LIST would need more than " + std::to_string(kMaxDataFiles) +
                     " data files");
     }
