@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <memory>
 #include <optional>
 
@@ -40,6 +41,7 @@ struct Options {
   bool quiet = false, skipNonFinite = false, checkStorage = false;
   // raw input
   std::string dims, type, endian = "little", grid;
+  int frame = -1;  // 4-D NIfTI / MetaImage: the frame to read
   std::vector<double> spacing, origin;
   std::uint64_t offset = 0;
 };
@@ -111,6 +113,7 @@ Input readInput(const Options& opt, const cip::BuildOptions& build, cip::Extract
     read.raw = f;
   }
   read.vdbGrid = opt.grid;
+  read.frame = opt.frame;
   read.apron = cip::brickApron(build);
   in.volume = cip::readVolume(opt.input, read);
   if (in.volume.isLevelSet) in.defaultIso = 0.0;
@@ -291,8 +294,8 @@ int main(int argc, char** argv) {
   Options opt;
   CLI::App app{
       "extract: turn a volume into a corner-patch model (.cip).\n"
-      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz, .vdb, or raw with --dims/--type) or an analytic "
-      "field\n"
+      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz or .hdr/.img, .mha/.mhd, .vdb, or raw with "
+      "--dims/--type)\nor an analytic field "
       "name (sphere, torus, gyroid, marschner-lobb, plane) sampled over [-1,1]^3.\n\n"
       "Examples:\n"
       "  extract data/blobs.nhdr --iso 0.5 -o blobs.cip\n"
@@ -341,6 +344,10 @@ int main(int argc, char** argv) {
       ->delimiter(',');
   app.add_option("--offset", opt.offset,
                  "raw input: bytes to skip before the first sample (default 0), e.g. --offset 352");
+  app.add_option("--frame", opt.frame,
+                 "4-D NIfTI or MetaImage input (a series of volumes): the frame to read, counted from 0; "
+                 "required when the file holds more than one, e.g. --frame 3")
+      ->check(CLI::Range(0, std::numeric_limits<int>::max()));
   app.add_option("--grid", opt.grid,
                  "OpenVDB input: grid name (default: the first float or double grid), e.g. --grid density");
   app.add_option(

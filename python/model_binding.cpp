@@ -60,7 +60,7 @@ Model buildNaming(const std::function<Model()>& build) {
 py::tuple extract(const py::object& input, const py::object& level, const py::object& spacing,
                   const py::object& origin, const std::string& method, const std::string& normals,
                   const std::string& reconstruction, int threads, const py::object& progress,
-                  bool skipNonFinite, const std::string& grid) {
+                  bool skipNonFinite, const std::string& grid, int frame) {
   BuildOptions options = buildOptions(method, normals, reconstruction, threads, skipNonFinite);
   const std::optional<double> iso =
       level.is_none() ? std::nullopt : std::optional<double>(level.cast<double>());
@@ -90,6 +90,7 @@ py::tuple extract(const py::object& input, const py::object& level, const py::ob
           }
           VolumeReadOptions read;
           read.vdbGrid = grid;
+          read.frame = frame;
           read.apron = brickApron(options);
           const SparseVolume volume = readVolume(path, read);
           range = volume.range();
@@ -267,7 +268,7 @@ void bindModel(py::module_& m) {
       py::arg("path"), "reads a .cip model file");
   m.def("_extract", &extract, py::arg("input"), py::arg("level"), py::arg("spacing"), py::arg("origin"),
         py::arg("method"), py::arg("normals"), py::arg("reconstruction"), py::arg("threads"),
-        py::arg("progress"), py::arg("skip_nonfinite"), py::arg("grid"));
+        py::arg("progress"), py::arg("skip_nonfinite"), py::arg("grid"), py::arg("frame"));
   m.def(
       "write_mesh",
       [](const std::string& path, const py::array& verts, const py::array& faces, const py::object& normals) {

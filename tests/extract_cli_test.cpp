@@ -266,6 +266,53 @@ TEST(ExtractCli, GridSelectsTheVdbGrid) {
   EXPECT_FALSE(std::filesystem::exists(missing));
 }
 
+/// A MetaImage file (float64, inline) holding the given frames of one grid's dims; a 4-D image for several.
+void writeMetaImage(const std::string& path, const std::vector<DenseGrid>& frames) {
+  const auto& d = frames[0].geometry.dims;
+  std::string text = "ObjectType = Image\nNDims = " + std::string(frames.size() > 1 ? "4" : "3") +
+                     "\nDimSize = " + std::to_string(d[0]) + " " + std::to_string(d[1]) + " " +
+                     std::to_string(d[2]) + (frames.size() > 1 ? " " + std::to_string(frames.size()) : "") +
+                     "\nElementType = MET_DOUBLE\nElementDataFile = LOCAL\n";
+  for (const DenseGrid& g : frames)
+    text.append(reinterpret_cast<const char*>(g.values.data()), g.values.size() * sizeof(double));
+  test::writeAll(path, text);
+}
+
+// --frame picks one volume of a 4-D series: the model is the one of a 3-D file holding that volume alone. A
+// series read without --frame, or with a frame it does not have, is a one-line error and no output.
+TEST(ExtractCli, FrameSelectsTheVolumeOfASeries) {
+  test::ScratchDir dir;
+  const DenseGrid sphere = sampleField(*makeAnalyticField("sphere"), 12, "sphere");
+  const DenseGrid torus = sampleField(*makeAnalyticField("torus"), 12, "torus");
+  const std::string series = dir.file("series.mha"), single = dir.file("torus.mha");
+  writeMetaImage(series, {sphere, torus});
+  writeMetaImage(single, {torus});
+  const std::string common = " --iso 0 --method paper -q -o ";
+  for (const char* frame : {"0", "1"}) {
+    auto r = test::run(kExtract + " " + series + " --frame " + frame + common +
+                       dir.file(std::string(frame) + ".cip"));
+    ASSERT_EQ(r.status, 0) << r.err;
+  }
+  auto r = test::run(kExtract + " " + single + common + dir.file("single.cip"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(numbersOf(readModel(dir.file("1.cip"))), numbersOf(readModel(dir.file("single.cip"))));
+  EXPECT_NE(numbersOf(readModel(dir.file("0.cip"))), numbersOf(readModel(dir.file("1.cip"))));
+  EXPECT_NE(readModel(dir.file("1.cip")).source.find("frame 1 of 2"), std::string::npos);
+
+  for (const std::string& args : {std::string(""), std::string(" --frame 2")}) {
+    const std::string out = dir.file("bad.cip");
+    r = test::run(kExtract + " " + series + args + common + out);
+    EXPECT_EQ(r.status, 1) << args;
+    EXPECT_EQ(r.err.rfind("extract: error: " + series + ": ", 0), 0u) << r.err;
+    EXPECT_NE(r.err.find(args.empty() ? "holds 2 frames" : "frame 2 is out of range"), std::string::npos)
+        << r.err;
+    EXPECT_EQ(r.err.find('\n'), r.err.size() - 1) << "one line: " << r.err;
+    EXPECT_FALSE(std::filesystem::exists(out));
+  }
+  r = test::run(kExtract + " " + series + " --frame -1" + common + dir.file("neg.cip"));
+  EXPECT_NE(r.status, 0);
+}
+
 // --check-storage measures the written model against the built one and reports it on standard error and under
 // "storage" in the stats file, keys added beside the others: within the format's bounds for format 2 (the
 // default), exactly 0 for the lossless format 1; without the flag neither appears, and --quiet keeps the line

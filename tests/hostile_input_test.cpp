@@ -6,12 +6,15 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
 #include <memory>
 #include <sstream>
+#include <tuple>
 #include <vector>
 
 #include "cip/model/model_file.h"
@@ -95,6 +98,78 @@ TEST_F(HostileInput, NonFiniteVoxelsAreRejectedOrSkipped) {
   EXPECT_EQ(r.status, 0) << r.err;
   cip::Model m = cip::readModel((dir / "b.cip").string());
   EXPECT_GT(m.cells.size(), 0u);
+}
+
+/// A little-endian NIfTI header (version 1 or 2) of uint8 samples with the given dims and, for NIfTI-1, a
+/// qform quaternion; data from byte 352 (NIfTI-1) or 544 (NIfTI-2).
+std::string niftiHeader(int version, std::array<std::int64_t, 3> dims,
+                        std::array<float, 3> quaternion = {0, 0, 0}) {
+  std::string h(version == 1 ? 352 : 544, '\0');
+  auto put = [&h](std::size_t at, auto v) { std::memcpy(&h[at], &v, sizeof v); };
+  if (version == 1) {
+    put(0, std::int32_t(348));
+    put(40, std::int16_t(3));
+    for (int a = 0; a < 3; ++a) put(42 + 2 * a, static_cast<std::int16_t>(dims[a]));
+    put(70, std::int16_t(2));
+    for (int a = 0; a < 4; ++a) put(76 + 4 * a, 1.0f);
+    put(108, 352.0f);
+    put(252, std::int16_t(1));
+    for (int a = 0; a < 3; ++a) put(256 + 4 * a, quaternion[a]);
+    std::memcpy(&h[344], "n+1", 4);
+  } else {
+    put(0, std::int32_t(540));
+    std::memcpy(&h[4], "n+2\0\r\n\032\n", 8);
+    put(12, std::int16_t(2));
+    put(16, std::int64_t(3));
+    for (int a = 0; a < 3; ++a) put(24 + 8 * a, dims[a]);
+    for (int a = 0; a < 4; ++a) put(104 + 8 * a, 1.0);
+    put(168, std::int64_t(544));
+  }
+  return h;
+}
+
+// Damaged or absurd NIfTI and MetaImage headers: a one-line error that starts with the file's path, exit
+// status 1, no output, and nothing allocated for sizes the header merely claims.
+TEST_F(HostileInput, DamagedMedicalHeaders) {
+  const std::string mhaDims = "ObjectType = Image\nNDims = 3\nElementType = MET_UCHAR\n";
+  const std::vector<std::tuple<std::string, std::string, std::string>> cases = {
+      {"truncated.mha", mhaDims + "DimSize = 2 2 2\n", "no ElementDataFile"},
+      {"cut_line.mha", mhaDims + "DimSize = 2 2 2\nElementSpa", "line 5 'ElementSpa' is not 'Key = Value'"},
+      {"huge.mha", mhaDims + "DimSize = 1000000 1000000 1000000\nElementDataFile = LOCAL\n", "MiB"},
+      {"frames.mha",
+       "NDims = 4\nDimSize = 2 2 2 4611686018427387904\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n",
+       "4611686018427387904 frames"},
+      {"flat.mha",
+       mhaDims + "DimSize = 2 2 2\nTransformMatrix = 1 0 0 0 1 0 0 0 0\nElementDataFile = LOCAL\n" +
+           std::string(8, '\1'),
+       "TransformMatrix"},
+      {"files.mhd", mhaDims + "DimSize = 2 2 4611686018427387904\nElementDataFile = s%d.raw\n", "data files"},
+      {"short.mha", mhaDims + "DimSize = 2 2 2\nElementDataFile = LOCAL\n" + std::string(5, '\1'),
+       "3 bytes short"},
+      {"quaternion.nii", niftiHeader(1, {2, 2, 2}, {0.8f, 0.8f, 0.1f}) + std::string(8, '\1'),
+       "not a rotation"},
+      {"huge2.nii", niftiHeader(2, {std::int64_t(1) << 40, std::int64_t(1) << 40, 4}) + std::string(8, '\1'),
+       "overflow"},
+      {"cut.nii", niftiHeader(1, {2, 2, 2}).substr(0, 200), "too small"},
+      {"lonely.hdr",
+       [] {
+         std::string h = niftiHeader(1, {2, 2, 2}).substr(0, 348);
+         h[345] = 'i';
+         return h;
+       }(),
+       "lonely.img"},
+  };
+  std::vector<std::string> names;
+  for (const auto& [name, contents, message] : cases) {
+    fs::path input = file(name, contents);
+    names.push_back(name);
+    CommandResult r = run(kExtract + " " + input.string() + " --iso 0.5 -o " + (dir / "m.cip").string());
+    EXPECT_EQ(r.status, 1) << name;
+    EXPECT_EQ(r.err.rfind("extract: error: " + input.string() + ": ", 0), 0u) << r.err;
+    EXPECT_NE(r.err.find(message), std::string::npos) << r.err;
+    EXPECT_EQ(r.err.find('\n'), r.err.size() - 1) << "one line: " << r.err;
+  }
+  expectOnly(names);
 }
 
 TEST_F(HostileInput, ZeroSizedAndOneVoxelThickVolumes) {

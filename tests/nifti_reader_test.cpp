@@ -4,9 +4,13 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+#include <cmath>
 #include <cstring>
+#include <limits>
 
 #include "cip/readers/nrrd_reader.h"
+#include "cip/readers/volume_reader.h"
 #include "support/volume_files.h"
 
 namespace cip {
@@ -104,8 +108,11 @@ TEST(NiftiReader, HandMadeHeadersBothByteOrders) {
     h.put<float>(80, -2.0f);                 // pixdim[1] negative: spacing is its absolute value
     h.put<float>(84, 3.0f);
     h.put<float>(88, 4.0f);
-    h.put<std::int16_t>(252, 0);  // no qform: origin from sform
+    h.put<std::int16_t>(252, 0);  // no qform: placement from the sform
     h.put<std::int16_t>(254, 2);
+    h.put<float>(280, 2.0f);
+    h.put<float>(296 + 4, 3.0f);
+    h.put<float>(312 + 8, 4.0f);
     h.put<float>(280 + 12, 7.0f);
     h.put<float>(296 + 12, 8.0f);
     h.put<float>(312 + 12, 9.0f);
@@ -126,13 +133,19 @@ TEST(NiftiReader, HandMadeHeadersBothByteOrders) {
     EXPECT_EQ(g.values, (std::vector<double>{-300, 1, 2, 32767, -32768, 5}));
     EXPECT_EQ(g.geometry.spacing, Vec3(2, 3, 4));
     EXPECT_EQ(g.geometry.origin, Vec3(7, 8, 9));
-    // With a qform, its offsets win over the sform.
+    EXPECT_EQ(g.geometry.space, WorldSpace::RAS);
+    // With a qform as well, the sform still wins; without the sform, the qform places the grid.
     h.put<std::int16_t>(252, 1);
     h.put<float>(268, -1.0f);
     h.put<float>(272, -2.0f);
     h.put<float>(276, -3.0f);
     test::writeAll(path, h.str() + data);
+    EXPECT_EQ(readNifti(path).geometry.origin, Vec3(7, 8, 9));
+    h.put<std::int16_t>(254, 0);
+    test::writeAll(path, h.str() + data);
     EXPECT_EQ(readNifti(path).geometry.origin, Vec3(-1, -2, -3));
+    EXPECT_EQ(readNifti(path).geometry.spacing, Vec3(2, 3, 4));
+    EXPECT_TRUE(readNifti(path).geometry.axisAligned());
     // 4-D with a single time point, and scaling with slope 0 (ignored).
     h.put<std::int16_t>(40, 4);
     h.put<float>(116, 100.0f);
@@ -205,7 +218,7 @@ TEST(NiftiReader, Errors) {
     HeaderBuilder h(false, 16, 32, {1, 1, 1});
     h.put<std::int16_t>(40, 4);
     h.put<std::int16_t>(48, 2);
-    expectBad(h, four + four, {"time points"});
+    expectBad(h, four + four, {"2 frames", "--frame"});
     h.put<std::int16_t>(40, 2);
     expectBad(h, four, {"dim[0] is 2"});
   }
@@ -247,6 +260,180 @@ TEST(NiftiReader, Errors) {
   test::writeAll(dir.file("long.nii.gz"), test::gzipBytes(plain + std::string(1 << 20, 'x')));
   expectError([&] { readNifti(dir.file("long.nii.gz")); },
               {"long.nii.gz", "continues past its declared size"});
+}
+
+/// The world position cip gives index `ijk`.
+Vec3 worldOf(const GridGeometry& g, const Vec3& ijk) {
+  return g.origin + g.direction * g.spacing.cwiseProduct(ijk);
+}
+
+TEST(NiftiReader, QformQuaternionAndQfac) {
+  test::ScratchDir dir;
+  const Eigen::Quaterniond q(Eigen::AngleAxisd(1.2, Vec3(0.3, -1, 0.4).normalized()));
+  const Mat3 rotation = q.toRotationMatrix();
+  for (double qfac : {1.0, -1.0, 0.0}) {
+    HeaderBuilder h(false, 2, 8, {2, 2, 2});
+    h.put<std::int16_t>(252, 1);
+    h.put<float>(76, static_cast<float>(qfac));
+    h.put<float>(80, 0.5f);
+    h.put<float>(84, 1.5f);
+    h.put<float>(88, 2.5f);
+    const double sign = q.w() < 0 ? -1 : 1;  // the file stores the quaternion with a >= 0
+    h.put<float>(256, static_cast<float>(sign * q.x()));
+    h.put<float>(260, static_cast<float>(sign * q.y()));
+    h.put<float>(264, static_cast<float>(sign * q.z()));
+    h.put<float>(268, 10.0f);
+    h.put<float>(272, -20.0f);
+    h.put<float>(276, 30.0f);
+    const std::string path = dir.file("q.nii");
+    test::writeAll(path, h.str() + std::string(8, '\x01'));
+    DenseGrid g = readNifti(path);
+    // qfac -1 flips the third index axis; 0 counts as 1.
+    const Mat3 expected = rotation * Vec3(1, 1, qfac == -1 ? -1 : 1).asDiagonal();
+    EXPECT_LT((g.geometry.direction - expected).cwiseAbs().maxCoeff(), 1e-6) << qfac;
+    EXPECT_LT((g.geometry.spacing - Vec3(0.5, 1.5, 2.5)).norm(), 1e-6);
+    const Vec3 ijk(1, 1, 1);
+    const Vec3 truth = Vec3(10, -20, 30) + expected * Vec3(0.5, 1.5, 2.5).cwiseProduct(ijk);
+    EXPECT_LT((worldOf(g.geometry, ijk) - truth).norm(), 1e-5);
+    EXPECT_EQ(readNiftiHeader(path).placement, NiftiPlacement::Qform);
+  }
+}
+
+TEST(NiftiReader, QuaternionBeyondTheUnitBallIsRefused) {
+  test::ScratchDir dir;
+  const std::string path = dir.file("q.nii");
+  HeaderBuilder h(false, 2, 8, {1, 1, 1});
+  h.put<std::int16_t>(252, 1);
+  h.put<float>(256, 0.6f);
+  h.put<float>(260, 0.6f);
+  h.put<float>(264, 0.6f);
+  test::writeAll(path, h.str() + "x");
+  expectError([&] { readNifti(path); }, {path, "quaternion", "not a rotation"});
+  // Within nibabel's tolerance (3 float epsilons) b² + c² + d² may exceed 1: a is 0, a half turn about x.
+  h.put<float>(256, std::nextafter(1.0f, 2.0f));
+  h.put<float>(260, 0.0f);
+  h.put<float>(264, 0.0f);
+  test::writeAll(path, h.str() + "x");
+  DenseGrid g = readNifti(path);
+  EXPECT_LT((g.geometry.direction - Vec3(1, -1, -1).asDiagonal().toDenseMatrix()).cwiseAbs().maxCoeff(),
+            1e-6);
+  h.put<float>(256, std::numeric_limits<float>::quiet_NaN());
+  test::writeAll(path, h.str() + "x");
+  expectError([&] { readNifti(path); }, {path, "quaternion", "not finite"});
+  // A zero pixdim makes the qform singular.
+  h.put<float>(256, 0.0f);
+  h.put<float>(84, 0.0f);
+  test::writeAll(path, h.str() + "x");
+  expectError([&] { readNifti(path); }, {path, "qform", "index axis 1"});
+}
+
+TEST(NiftiReader, BadSformsAreRefused) {
+  test::ScratchDir dir;
+  const std::string path = dir.file("s.nii");
+  auto withSform = [&](const Mat3& m, const Vec3& origin) {
+    HeaderBuilder h(false, 2, 8, {1, 1, 1});
+    h.put<std::int16_t>(254, 1);
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) h.put<float>(280 + 16 * r + 4 * c, static_cast<float>(m(r, c)));
+      h.put<float>(280 + 16 * r + 12, static_cast<float>(origin[r]));
+    }
+    test::writeAll(path, h.str() + "x");
+  };
+  Mat3 m = Mat3::Identity();
+  m(2, 2) = 0;  // index axis 2 goes nowhere
+  withSform(m, Vec3::Zero());
+  expectError([&] { readNifti(path); }, {path, "sform", "index axis 2 has no length"});
+  m = Mat3::Identity();
+  m.col(1) = Vec3(2, 0, 0);  // axes 0 and 1 parallel
+  withSform(m, Vec3::Zero());
+  expectError([&] { readNifti(path); }, {path, "sform", "singular"});
+  m = Mat3::Identity();
+  m(0, 1) = std::numeric_limits<double>::infinity();
+  withSform(m, Vec3::Zero());
+  expectError([&] { readNifti(path); }, {path, "sform", "not finite"});
+  withSform(Mat3::Identity(), Vec3(0, std::numeric_limits<double>::quiet_NaN(), 0));
+  expectError([&] { readNifti(path); }, {path, "sform", "origin is not finite"});
+}
+
+TEST(NiftiReader, FramesPairsAndDimensions) {
+  test::ScratchDir dir;
+  for (bool big : {false, true}) {
+    HeaderBuilder h(big, 2, 8, {2, 1, 1});
+    h.put<std::int16_t>(40, 4);
+    h.put<std::int16_t>(48, 3);  // three frames of two samples
+    const std::string data = "\x01\x02\x03\x04\x05\x06";
+    const std::string path = dir.file("f.nii");
+    test::writeAll(path, h.str() + data);
+    for (int frame = 0; frame < 3; ++frame) {
+      DenseGrid g = readNifti(path, DenseGrid::defaultMaxBytes(), frame);
+      EXPECT_EQ(g.values, (std::vector<double>{2.0 * frame + 1, 2.0 * frame + 2}));
+    }
+    expectError([&] { readNifti(path); }, {path, "3 frames", "--frame 0..2"});
+    expectError([&] { readNifti(path, DenseGrid::defaultMaxBytes(), 3); }, {path, "frame 3 is out of range"});
+    // The same as a compressed file, and as a header/image pair (magic "ni1", data from byte 0 of the .img).
+    test::writeAll(dir.file("f.nii.gz"), test::gzipBytes(h.str() + data));
+    EXPECT_EQ(readNifti(dir.file("f.nii.gz"), DenseGrid::defaultMaxBytes(), 2).values,
+              (std::vector<double>{5, 6}));
+    std::memcpy(h.bytes + 344, "ni1\0", 4);
+    h.put<float>(108, 0.0f);
+    test::writeAll(dir.file("p.hdr"), h.str().substr(0, 348));
+    test::writeAll(dir.file("p.img"), data);
+    for (const char* name : {"p.hdr", "p.img"})
+      EXPECT_EQ(readNifti(dir.file(name), DenseGrid::defaultMaxBytes(), 1).values,
+                (std::vector<double>{3, 4}));
+    EXPECT_EQ(volumeFileBytes(dir.file("p.img")), 348u + 6);
+    std::remove(dir.file("p.img").c_str());
+    expectError([&] { readNifti(dir.file("p.hdr"), DenseGrid::defaultMaxBytes(), 1); },
+                {"p.img", "cannot open"});
+    // Five dimensions with a real fifth extent are refused; trailing extents of 1 are not a fifth dimension.
+    std::memcpy(h.bytes + 344, "n+1\0", 4);
+    h.put<float>(108, 352.0f);
+    h.put<std::int16_t>(40, 5);
+    h.put<std::int16_t>(48, 1);
+    h.put<std::int16_t>(50, 2);
+    test::writeAll(path, h.str() + data.substr(0, 4));
+    expectError([&] { readNifti(path); }, {path, "5 dimensions", "dim[5] is 2"});
+    h.put<std::int16_t>(50, 1);
+    test::writeAll(path, h.str() + data.substr(0, 2));
+    EXPECT_EQ(readNifti(path).values, (std::vector<double>{1, 2}));
+  }
+}
+
+TEST(NiftiWriter, WritesTheDirection) {
+  test::ScratchDir dir;
+  DenseGrid src = smallGrid();
+  Mat3 rotation = Eigen::AngleAxisd(2.1, Vec3(1, 1, -0.5).normalized()).toRotationMatrix();
+  Mat3 shear;
+  shear << 1, 0.3, 0, 0, 1, 0.2, 0.1, 0, 1;
+  for (const Mat3& columns :
+       {rotation, Mat3(rotation * Vec3(1, -1, 1).asDiagonal()), Mat3(rotation * shear)}) {
+    for (WorldSpace space : {WorldSpace::RAS, WorldSpace::LPS, WorldSpace::Unspecified}) {
+      setAxes(src.geometry, columns * Vec3(0.5, 1.25, 2.0).asDiagonal(), "test");
+      src.geometry.space = space;
+      const std::string path = dir.file("w.nii");
+      writeNifti(path, src);
+      DenseGrid g = readNifti(path);
+      NiftiHeader h = readNiftiHeader(path);
+      EXPECT_EQ(h.sformCode, 1);
+      const bool orthonormal = (columns.transpose() * columns - Mat3::Identity()).norm() < 1e-9;
+      EXPECT_EQ(h.qformCode, orthonormal ? 1 : 0);
+      EXPECT_EQ(g.geometry.space, WorldSpace::RAS);
+      // LPS -> RAS negates x and y.
+      const Vec3 flip = space == WorldSpace::LPS ? Vec3(-1, -1, 1) : Vec3(1, 1, 1);
+      for (const Vec3& ijk : {Vec3(0, 0, 0), Vec3(4, 3, 2), Vec3(1, 2, 0)}) {
+        const Vec3 expected = flip.cwiseProduct(worldOf(src.geometry, ijk));
+        EXPECT_LT((worldOf(g.geometry, ijk) - expected).norm(), 1e-5);
+      }
+      // The qform alone, when written, places the grid the same way.
+      if (h.qformCode == 1) {
+        std::string bytes = test::readAll(path);
+        bytes[254] = 0;
+        test::writeAll(path, bytes);
+        DenseGrid q = readNifti(path);
+        EXPECT_LT((q.geometry.direction - g.geometry.direction).cwiseAbs().maxCoeff(), 1e-6);
+      }
+    }
+  }
 }
 
 TEST(NiftiWriter, RejectsUnwritableGrids) {

@@ -25,6 +25,10 @@ TEST(VolumeReader, FormatFromName) {
   EXPECT_EQ(volumeFormatOf("x.nii"), VolumeFormat::Nifti);
   EXPECT_EQ(volumeFormatOf("x.nii.gz"), VolumeFormat::Nifti);
   EXPECT_EQ(volumeFormatOf("x.vdb"), VolumeFormat::Vdb);
+  for (const char* name : {"x.hdr", "X.IMG", "x.hdr.gz", "x.img.gz"})
+    EXPECT_EQ(volumeFormatOf(name), VolumeFormat::Nifti);
+  EXPECT_EQ(volumeFormatOf("x.mha"), VolumeFormat::MetaImage);
+  EXPECT_EQ(volumeFormatOf("x.MHD"), VolumeFormat::MetaImage);
   EXPECT_EQ(volumeFormatOf("x.raw"), VolumeFormat::Raw);
   EXPECT_EQ(volumeFormatOf("x.gz"), VolumeFormat::Raw);
 }
@@ -84,6 +88,14 @@ TEST(VolumeReader, RawNeedsFormat) {
   // A known extension wins over a raw format.
   SparseVolume n = readVolume(sharedData("nucleon.nhdr"), o);
   EXPECT_EQ(n.geometry.dims, (std::array<std::int64_t, 3>{41, 41, 41}));
+  // Except for a .img without the .hdr of a NIfTI pair beside it: raw data; with the .hdr, the pair.
+  test::ScratchDir dir;
+  const std::string img = dir.file("headsq.img");
+  test::writeAll(img, test::readAll(path));
+  EXPECT_EQ(readVolume(img, o).dense()->values, v.dense()->values);
+  expectError([&] { readVolume(img); }, {img, "headsq.hdr", "cannot open"});
+  test::writeAll(dir.file("headsq.hdr"), "not a header");
+  expectError([&] { readVolume(img, o); }, {"headsq.hdr", "too small for a NIfTI header"});
 }
 
 TEST(VolumeReader, NiftiAndVdb) {

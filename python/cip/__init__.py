@@ -84,12 +84,12 @@ def marching_cubes(volume, level=None, *, spacing=(1.0, 1.0, 1.0), gradient_dire
 
 
 def extract(volume_or_path, level=None, *, spacing=None, origin=None, method="fitted", normals="gradient",
-            reconstruction="auto", threads=0, progress=None, skip_nonfinite=False, grid=""):
+            reconstruction="auto", threads=0, progress=None, skip_nonfinite=False, grid="", frame=None):
     """Builds a corner-patch model (cip.Model) from a 3-D array or a volume file, as the `extract` command does.
 
     volume_or_path: a numeric 3-D array (axis order = x, y, z of the model; spacing and origin place it in the
-    world, default 1 and 0) or a file the command reads (.nrrd/.nhdr, .nii/.nii.gz, .vdb; `grid` names the VDB
-    grid). level: the isovalue (default: the middle of an array's range, 0 for level sets; other files need
+    world, default 1 and 0) or a file the command reads (.nrrd/.nhdr, .nii/.nii.gz/.hdr/.img, .mha/.mhd, .vdb;
+    `grid` names the VDB grid, `frame` the volume of a 4-D NIfTI or MetaImage series, from 0). level: the isovalue (default: the middle of an array's range, 0 for level sets; other files need
     one). method 'fitted' or 'paper', normals 'gradient', 'edge' or 'exact', reconstruction 'auto', 'monotone'
     or 'central8' as the command's flags. threads: 0 = all. progress: called with the fraction done in [0, 1].
     Runs without the GIL; Ctrl-C stops it (KeyboardInterrupt), as does an exception raised by `progress`.
@@ -102,7 +102,7 @@ def extract(volume_or_path, level=None, *, spacing=None, origin=None, method="fi
     else:
         volume_or_path = _volume(volume_or_path)
     model, lo, hi = _cip._extract(volume_or_path, level, spacing, origin, method, normals, reconstruction, threads,
-                                  progress, skip_nonfinite, grid)
+                                  progress, skip_nonfinite, grid, -1 if frame is None else int(frame))
     if not (lo < model.isovalue < hi):
         warnings.warn("isovalue %g is outside the data range [%g, %g]; the surface is empty" % (model.isovalue, lo, hi))
     return model

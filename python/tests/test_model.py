@@ -168,3 +168,20 @@ def test_errors(tmp_path, blobs_path):
     assert cip.extract(nan, 0.5, skip_nonfinite=True).n_cells > 0
     with pytest.warns(UserWarning, match="outside the data range"):
         assert cip.extract(sphere(), 10.0).n_cells == 0
+
+
+def test_frame_of_a_series_gives_the_commands_model(tmp_path, extract_exe):
+    frames = [gyroid((20, 18, 16)), sphere((20, 18, 16))]
+    path = tmp_path / "series.mha"
+    with open(path, "wb") as f:
+        f.write(b"ObjectType = Image\nNDims = 4\nDimSize = 20 18 16 2\nElementType = MET_DOUBLE\n"
+                b"TransformMatrix = 0 1 0 0  -1 0 0 0  0 0 1 0  0 0 0 1\nElementDataFile = LOCAL\n")
+        for volume in frames:
+            f.write(np.asarray(volume, dtype="<f8").tobytes(order="F"))
+    subprocess.run([extract_exe, str(path), "--frame", "1", "--iso", "0", "-o", str(tmp_path / "cli.cip"), "-q"],
+                   check=True)
+    cip.extract(str(path), 0.0, frame=1).save(str(tmp_path / "py.cip"))
+    assert (tmp_path / "cli.cip").read_bytes() == (tmp_path / "py.cip").read_bytes()
+    assert cip.extract(str(path), 0.0, frame=0).n_cells != cip.extract(str(path), 0.0, frame=1).n_cells
+    with pytest.raises(cip.Error, match="2 frames"):
+        cip.extract(str(path), 0.0)

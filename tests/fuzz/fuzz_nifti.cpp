@@ -1,4 +1,5 @@
-// libFuzzer target: NIfTI-1 header parser and reader, plain (.nii) and gzip (.nii.gz) files.
+// libFuzzer target: NIfTI-1 and NIfTI-2 header parser and reader, plain (.nii) and gzip (.nii.gz) files, the
+// whole file and frame 1 of a 4-D series.
 #include "cip/core/error.h"
 #include "cip/readers/nifti_reader.h"
 #include "fuzz_input.h"
@@ -11,9 +12,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   // gzip data (magic 1f 8b) goes through the .nii.gz path, everything else through .nii.
   bool gz = size >= 2 && data[0] == 0x1f && data[1] == 0x8b;
   std::string path = cip::fuzz::writeInput(data, size, gz ? ".nii.gz" : ".nii");
-  try {
-    cip::readNifti(path, cip::fuzz::kMaxFuzzBytes);
-  } catch (const cip::Error&) {
+  for (int frame : {-1, 1}) {
+    try {
+      cip::readNifti(path, cip::fuzz::kMaxFuzzBytes, frame);
+    } catch (const cip::Error&) {
+    }
   }
   unlink(path.c_str());
   return 0;

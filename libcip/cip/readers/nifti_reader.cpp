@@ -3,8 +3,11 @@
 #include <zlib.h>
 
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -16,15 +19,21 @@ namespace cip {
 
 namespace {
 
-// Byte offsets of the NIfTI-1 header fields used here.
-constexpr std::size_t kSizeofHdr = 0, kDim = 40, kDatatype = 70, kBitpix = 72, kPixdim = 76, kVoxOffset = 108,
-                      kSclSlope = 112, kSclInter = 116, kQformCode = 252, kSformCode = 254, kQuatern = 256,
-                      kQoffset = 268, kSrowX = 280, kSrowY = 296, kSrowZ = 312, kMagic = 344;
-constexpr std::size_t kWriteOffset = 352;  // header + 4-byte extension flag
+/// Byte offsets and widths of the header fields used here, for NIfTI-1 and NIfTI-2.
+struct Layout {
+  std::size_t headerBytes, magic, datatype, bitpix, dim, pixdim, voxOffset, sclSlope, sclInter, qformCode,
+      sformCode, quatern, qoffset, srow;
+  std::size_t dimBytes, realBytes, codeBytes;  ///< widths of dim[], of the real fields, of the form codes
+};
+constexpr Layout kNifti1{348, 344, 70, 72, 40, 76, 108, 112, 116, 252, 254, 256, 268, 280, 2, 4, 2};
+constexpr Layout kNifti2{540, 4, 12, 14, 16, 104, 168, 176, 184, 344, 348, 352, 376, 400, 8, 8, 4};
+constexpr std::size_t kWriteOffset = 352;  // NIfTI-1 header + 4-byte extension flag
 
+/// Reads fields of one header layout in the file's byte order.
 class FieldReader {
  public:
-  FieldReader(const unsigned char* bytes, bool swap) : bytes_(bytes), swap_(swap) {}
+  FieldReader(const unsigned char* bytes, bool swap, const Layout& layout)
+      : bytes_(bytes), swap_(swap), layout_(layout) {}
   template <typename T>
   T get(std::size_t offset) const {
     unsigned char tmp[sizeof(T)];
@@ -33,10 +42,28 @@ class FieldReader {
     std::memcpy(&v, tmp, sizeof(T));
     return v;
   }
+  /// A floating-point field: float32 in NIfTI-1, float64 in NIfTI-2.
+  double real(std::size_t offset) const {
+    return layout_.realBytes == 4 ? static_cast<double>(get<float>(offset)) : get<double>(offset);
+  }
+  /// dim[i]: int16 in NIfTI-1, int64 in NIfTI-2.
+  std::int64_t dim(int i) const {
+    std::size_t at = layout_.dim + layout_.dimBytes * static_cast<std::size_t>(i);
+    return layout_.dimBytes == 2 ? get<std::int16_t>(at) : get<std::int64_t>(at);
+  }
+  double pixdim(int i) const {
+    return real(layout_.pixdim + layout_.realBytes * static_cast<std::size_t>(i));
+  }
+  /// qform_code / sform_code: int16 in NIfTI-1, int32 in NIfTI-2.
+  int code(std::size_t offset) const {
+    return layout_.codeBytes == 2 ? get<std::int16_t>(offset) : get<std::int32_t>(offset);
+  }
+  const Layout& layout() const { return layout_; }
 
  private:
   const unsigned char* bytes_;
   bool swap_;
+  const Layout& layout_;
 };
 
 bool isGzip(const std::string& path) {
@@ -70,55 +97,68 @@ std::string datatypeName(int code) {
   }
 }
 
-/// Whether the header's fields are in the other byte order than the host's (from sizeof_hdr, which must be
-/// 348 in one of the two orders).
-bool headerIsSwapped(const unsigned char* bytes) {
+/// The NIfTI version (1 or 2) from sizeof_hdr (348 or 540 in either byte order) and whether the header's
+/// fields are in the other byte order than the host's.
+int headerVersion(const unsigned char* bytes, std::size_t size, bool& swap) {
+  if (size < kNiftiHeaderBytes) {
+    throw Error("too small for a NIfTI header (" + std::to_string(size) + " of at least 348 bytes)");
+  }
   std::int32_t sizeofHdr;
-  std::memcpy(&sizeofHdr, bytes + kSizeofHdr, 4);
-  if (sizeofHdr == 348) return false;
-  if (__builtin_bswap32(static_cast<std::uint32_t>(sizeofHdr)) == 348u) return true;
-  if (sizeofHdr == 540 || __builtin_bswap32(static_cast<std::uint32_t>(sizeofHdr)) == 540u) {
-    throw Error("NIfTI-2 files are not supported (only NIfTI-1)");
-  }
-  throw Error("not a NIfTI-1 file: sizeof_hdr is " + std::to_string(sizeofHdr) + ", expected 348");
-}
-
-/// Accepts the single-file magic "n+1" only.
-void checkMagic(const unsigned char* bytes) {
-  const unsigned char* magic = bytes + kMagic;
-  if (std::memcmp(magic, "ni1\0", 4) == 0) {
-    throw Error(
-        "NIfTI-1 header/image pairs (.hdr/.img, magic \"ni1\") are not supported; use a single .nii file");
-  }
-  if (std::memcmp(magic, "n+1\0", 4) != 0) throw Error("not a NIfTI-1 file: magic is not \"n+1\"");
-}
-
-/// dim[1..3], for a 3-D volume or a 4-D one with a single time point.
-std::array<std::int64_t, 3> readDims(const FieldReader& f) {
-  std::int16_t dim[8];
-  for (int i = 0; i < 8; ++i) dim[i] = f.get<std::int16_t>(kDim + 2 * static_cast<std::size_t>(i));
-  if (dim[0] != 3 && !(dim[0] == 4 && dim[4] == 1)) {
-    if (dim[0] == 4) {
-      throw Error("4-D NIfTI volume with " + std::to_string(dim[4]) +
-                  " time points is not supported (dim[4] must be 1)");
+  std::memcpy(&sizeofHdr, bytes, 4);
+  const auto swapped = static_cast<std::int32_t>(__builtin_bswap32(static_cast<std::uint32_t>(sizeofHdr)));
+  for (int version : {1, 2}) {
+    const auto expected = static_cast<std::int32_t>(version == 1 ? kNiftiHeaderBytes : kNifti2HeaderBytes);
+    if (sizeofHdr == expected || swapped == expected) {
+      swap = sizeofHdr != expected;
+      if (size < static_cast<std::size_t>(expected)) {
+        throw Error("too small for a NIfTI-" + std::to_string(version) + " header (" + std::to_string(size) +
+                    " of " + std::to_string(expected) + " bytes)");
+      }
+      return version;
     }
-    throw Error("NIfTI dim[0] is " + std::to_string(dim[0]) + "; a volume needs 3 (or 4 with dim[4] = 1)");
   }
-  std::array<std::int64_t, 3> dims;
+  throw Error("not a NIfTI file: sizeof_hdr is " + std::to_string(sizeofHdr) +
+              ", expected 348 (NIfTI-1) or 540 (NIfTI-2)");
+}
+
+/// "n+1"/"n+2": data in the same file; "ni1"/"ni2": data in the .img beside the .hdr. Returns whether it is
+/// a pair.
+bool readMagic(const unsigned char* bytes, int version) {
+  const unsigned char* magic = bytes + (version == 1 ? kNifti1 : kNifti2).magic;
+  const char digit = static_cast<char>('0' + version);
+  if (magic[0] == 'n' && (magic[1] == '+' || magic[1] == 'i') && magic[2] == digit && magic[3] == 0)
+    return magic[1] == 'i';
+  throw Error("not a NIfTI-" + std::to_string(version) + " file: magic is not \"n+" + digit + "\" or \"ni" +
+              digit + "\"");
+}
+
+/// dim[1..3] and the frame count: dim[0] 3 or 4 (or more when the extents past dim[4] are 1).
+void readDims(const FieldReader& f, NiftiHeader& h) {
+  const std::int64_t ndim = f.dim(0);
+  if (ndim < 3 || ndim > 7) {
+    throw Error("NIfTI dim[0] is " + std::to_string(ndim) +
+                "; a volume needs 3 (or 4 for a series of frames)");
+  }
   for (int a = 0; a < 3; ++a) {
-    if (dim[a + 1] < 1) {
-      throw Error("NIfTI dim[" + std::to_string(a + 1) + "] is " + std::to_string(dim[a + 1]) +
-                  " (must be >= 1)");
-    }
-    dims[a] = dim[a + 1];
+    const std::int64_t n = f.dim(a + 1);
+    if (n < 1)
+      throw Error("NIfTI dim[" + std::to_string(a + 1) + "] is " + std::to_string(n) + " (must be >= 1)");
+    h.geometry.dims[a] = n;
   }
-  return dims;
+  h.frames = ndim >= 4 ? f.dim(4) : 1;
+  if (h.frames < 1) throw Error("NIfTI dim[4] is " + std::to_string(h.frames) + " (must be >= 1)");
+  for (int d = 5; d <= ndim; ++d) {
+    if (f.dim(d) != 1) {
+      throw Error("NIfTI volume has " + std::to_string(ndim) + " dimensions (dim[" + std::to_string(d) +
+                  "] is " + std::to_string(f.dim(d)) + "); only 3-D volumes and 4-D series are supported");
+    }
+  }
 }
 
 /// The sample type from datatype, checked against bitpix (0 = not given).
 SampleType readSampleType(const FieldReader& f) {
   SampleType type = SampleType::UInt8;
-  int datatype = f.get<std::int16_t>(kDatatype);
+  int datatype = f.get<std::int16_t>(f.layout().datatype);
   switch (datatype) {
     case 2:
       type = SampleType::UInt8;
@@ -148,7 +188,7 @@ SampleType readSampleType(const FieldReader& f) {
       throw Error("NIfTI datatype " + std::to_string(datatype) + " (" + datatypeName(datatype) +
                   ") is not supported (uint8, int8, int16, uint16, int32, uint32, float32, float64 are)");
   }
-  int bitpix = f.get<std::int16_t>(kBitpix);
+  int bitpix = f.get<std::int16_t>(f.layout().bitpix);
   if (bitpix != 0 && bitpix != static_cast<int>(8 * sampleSize(type))) {
     throw Error("NIfTI bitpix " + std::to_string(bitpix) + " does not match datatype " + toString(type));
   }
@@ -156,10 +196,10 @@ SampleType readSampleType(const FieldReader& f) {
 }
 
 /// |pixdim[1..3]|, each positive and finite.
-Vec3 readSpacing(const FieldReader& f) {
+Vec3 readPixdim(const FieldReader& f) {
   Vec3 spacing;
   for (int a = 0; a < 3; ++a) {
-    double s = std::abs(static_cast<double>(f.get<float>(kPixdim + 4 * static_cast<std::size_t>(a + 1))));
+    double s = std::abs(f.pixdim(a + 1));
     if (!(s > 0) || !std::isfinite(s)) {
       throw Error("NIfTI pixdim[" + std::to_string(a + 1) + "] is " + std::to_string(s) +
                   " (spacing must be positive and finite)");
@@ -169,121 +209,271 @@ Vec3 readSpacing(const FieldReader& f) {
   return spacing;
 }
 
-/// vox_offset: a whole number of bytes, at least the header's.
-std::uint64_t readDataOffset(const FieldReader& f) {
-  double voxOffset = f.get<float>(kVoxOffset);
-  if (!std::isfinite(voxOffset) || voxOffset < static_cast<double>(kNiftiHeaderBytes) ||
-      voxOffset != std::floor(voxOffset) || voxOffset > 9.0e15) {
+/// vox_offset: a whole number of bytes, at least the header's for a single file.
+std::uint64_t readDataOffset(const FieldReader& f, bool pair) {
+  const double voxOffset = f.layout().realBytes == 4
+                               ? f.real(f.layout().voxOffset)
+                               : static_cast<double>(f.get<std::int64_t>(f.layout().voxOffset));
+  const double least = pair ? 0.0 : static_cast<double>(f.layout().headerBytes);
+  if (!std::isfinite(voxOffset) || voxOffset < least || voxOffset != std::floor(voxOffset) ||
+      voxOffset > 9.0e15) {
     throw Error("NIfTI vox_offset " + std::to_string(voxOffset) +
-                " is invalid (must be a whole number >= 348)");
+                " is invalid (must be a whole number >= " + std::to_string(static_cast<int>(least)) + ")");
   }
   return static_cast<std::uint64_t>(voxOffset);
 }
 
-/// Value scaling (non-finite slope or intercept read as 0), the form codes and the origin they select:
-/// qoffset if qform_code > 0, else the translation column of the srows if sform_code > 0, else 0.
-void readScalingAndOrigin(const FieldReader& f, NiftiHeader& h) {
-  h.slope = f.get<float>(kSclSlope);
-  h.inter = f.get<float>(kSclInter);
+Vec3 finiteOrigin(const Vec3& origin, const char* what) {
+  if (!origin.allFinite()) throw Error(std::string(what) + ": the origin is not finite");
+  return origin;
+}
+
+/// Rotation of the unit quaternion (a, b, c, d), as nibabel's quat2mat (normalised by its squared norm).
+Mat3 quaternionRotation(double a, double b, double c, double d) {
+  const double n = a * a + b * b + c * c + d * d;
+  const double s = 2.0 / n;
+  const double x = b * s, y = c * s, z = d * s;
+  Mat3 r;
+  r << 1 - (c * y + d * z), b * y - a * z, b * z + a * y,  //
+      b * y + a * z, 1 - (b * x + d * z), c * z - a * x,   //
+      b * z - a * y, c * z + a * x, 1 - (b * x + c * y);
+  return r;
+}
+
+/// The qform: quaternion rotation times diag(pixdim[1], pixdim[2], qfac * pixdim[3]) plus qoffset.
+void readQform(const FieldReader& f, NiftiHeader& h) {
+  const Layout& l = f.layout();
+  const double b = f.real(l.quatern), c = f.real(l.quatern + l.realBytes),
+               d = f.real(l.quatern + 2 * l.realBytes);
+  if (!std::isfinite(b) || !std::isfinite(c) || !std::isfinite(d))
+    throw Error("NIfTI qform: the quaternion is not finite");
+  // nibabel's tolerance: b² + c² + d² may exceed 1 by 3 epsilons of the header's float type.
+  const double tolerance = 3 * (l.realBytes == 4 ? static_cast<double>(std::numeric_limits<float>::epsilon())
+                                                 : std::numeric_limits<double>::epsilon());
+  const double w2 = 1.0 - (b * b + c * c + d * d);
+  if (w2 < -tolerance) {
+    throw Error("NIfTI qform: the quaternion (b, c, d) = (" + std::to_string(b) + ", " + std::to_string(c) +
+                ", " + std::to_string(d) + ") has b² + c² + d² = " + std::to_string(1.0 - w2) +
+                " > 1: not a rotation");
+  }
+  const double a = w2 > 0 ? std::sqrt(w2) : 0.0;
+  const Vec3 pixdim(std::abs(f.pixdim(1)), std::abs(f.pixdim(2)), std::abs(f.pixdim(3)));
+  const double qfac = f.pixdim(0) == -1.0 ? -1.0 : 1.0;
+  Mat3 columns = quaternionRotation(a, b, c, d) * Vec3(pixdim[0], pixdim[1], qfac * pixdim[2]).asDiagonal();
+  setAxes(h.geometry, columns, "NIfTI qform");
+  h.geometry.origin = finiteOrigin(
+      Vec3(f.real(l.qoffset), f.real(l.qoffset + l.realBytes), f.real(l.qoffset + 2 * l.realBytes)),
+      "NIfTI qform");
+}
+
+/// The sform: rows srow_x, srow_y, srow_z = [3x3 | offset].
+void readSform(const FieldReader& f, NiftiHeader& h) {
+  const Layout& l = f.layout();
+  Mat3 columns;
+  Vec3 origin;
+  for (int r = 0; r < 3; ++r) {
+    const std::size_t row = l.srow + 4 * l.realBytes * static_cast<std::size_t>(r);
+    for (int c = 0; c < 3; ++c) columns(r, c) = f.real(row + l.realBytes * static_cast<std::size_t>(c));
+    origin[r] = f.real(row + 3 * l.realBytes);
+  }
+  setAxes(h.geometry, columns, "NIfTI sform");
+  h.geometry.origin = finiteOrigin(origin, "NIfTI sform");
+}
+
+/// Value scaling (non-finite slope or intercept read as 0), the form codes and the placement they select:
+/// sform if sform_code > 0, else qform if qform_code > 0, else pixdim alone.
+void readScalingAndPlacement(const FieldReader& f, NiftiHeader& h) {
+  const Layout& l = f.layout();
+  h.slope = f.real(l.sclSlope);
+  h.inter = f.real(l.sclInter);
   if (!std::isfinite(h.slope)) h.slope = 0;
   if (!std::isfinite(h.inter)) h.inter = 0;
 
-  h.qformCode = f.get<std::int16_t>(kQformCode);
-  h.sformCode = f.get<std::int16_t>(kSformCode);
-  if (h.qformCode > 0) {
-    for (int a = 0; a < 3; ++a) h.origin[a] = f.get<float>(kQoffset + 4 * static_cast<std::size_t>(a));
-  } else if (h.sformCode > 0) {
-    h.origin = Vec3(f.get<float>(kSrowX + 12), f.get<float>(kSrowY + 12), f.get<float>(kSrowZ + 12));
+  h.qformCode = f.code(l.qformCode);
+  h.sformCode = f.code(l.sformCode);
+  if (h.sformCode > 0) {
+    readSform(f, h);
+    h.placement = NiftiPlacement::Sform;
+    h.geometry.space = WorldSpace::RAS;
+  } else if (h.qformCode > 0) {
+    readQform(f, h);
+    h.placement = NiftiPlacement::Qform;
+    h.geometry.space = WorldSpace::RAS;
+  } else {
+    h.geometry.spacing = readPixdim(f);
+    h.placement = NiftiPlacement::Pixdim;
   }
-  for (int a = 0; a < 3; ++a) {
-    if (!std::isfinite(h.origin[a])) throw Error("NIfTI origin (qoffset/srow) is not finite");
+}
+
+/// `path` with its last `suffix.size()` characters replaced by `suffix`, matching the case of the old one.
+std::string withSuffix(const std::string& path, std::size_t oldLength, const std::string& suffix) {
+  std::string stem = path.substr(0, path.size() - oldLength);
+  const bool upper =
+      oldLength > 1 && std::isupper(static_cast<unsigned char>(path[path.size() - oldLength + 1]));
+  std::string s = suffix;
+  if (upper)
+    for (char& ch : s) ch = static_cast<char>(std::toupper(static_cast<unsigned char>(ch)));
+  return stem + s;
+}
+
+/// The companion of a pair file: `from` (".hdr" or ".img") replaced by `to`, keeping a ".gz" suffix when the
+/// file exists so, else trying the other compression.
+std::string companionPath(const std::string& path, const std::string& from, const std::string& to) {
+  std::string candidates[2];
+  if (endsWithNoCase(path, from + ".gz")) {
+    candidates[0] = withSuffix(path, from.size() + 3, to + ".gz");
+    candidates[1] = withSuffix(path, from.size() + 3, to);
+  } else if (endsWithNoCase(path, from)) {
+    candidates[0] = withSuffix(path, from.size(), to);
+    candidates[1] = withSuffix(path, from.size(), to + ".gz");
+  } else {
+    return "";
   }
+  std::error_code ec;
+  if (!std::filesystem::exists(candidates[0], ec) && std::filesystem::exists(candidates[1], ec))
+    return candidates[1];
+  return candidates[0];
 }
 
 }  // namespace
 
-NiftiHeader parseNiftiHeader(const unsigned char* bytes, std::size_t size) {
-  if (size < kNiftiHeaderBytes) {
-    throw Error("too small for a NIfTI-1 header (" + std::to_string(size) + " of 348 bytes)");
+const char* toString(NiftiPlacement placement) {
+  switch (placement) {
+    case NiftiPlacement::Sform:
+      return "sform";
+    case NiftiPlacement::Qform:
+      return "qform";
+    case NiftiPlacement::Pixdim:
+      break;
   }
-  const bool swap = headerIsSwapped(bytes);
+  return "pixdim";
+}
+
+NiftiHeader parseNiftiHeader(const unsigned char* bytes, std::size_t size) {
+  bool swap = false;
   NiftiHeader h;
+  h.version = headerVersion(bytes, size, swap);
   h.endian = (hostEndian() == Endian::Little) != swap ? Endian::Little : Endian::Big;
-  checkMagic(bytes);
-  const FieldReader f(bytes, swap);
-  h.dims = readDims(f);
+  h.pair = readMagic(bytes, h.version);
+  const FieldReader f(bytes, swap, h.version == 1 ? kNifti1 : kNifti2);
+  readDims(f, h);
   h.type = readSampleType(f);
-  h.spacing = readSpacing(f);
-  h.dataOffset = readDataOffset(f);
-  readScalingAndOrigin(f, h);
+  h.dataOffset = readDataOffset(f, h.pair);
+  readScalingAndPlacement(f, h);
   return h;
 }
 
-NiftiHeader readNiftiHeader(const std::string& path) {
-  std::unique_ptr<ByteSource> source;
-  if (isGzip(path)) {
-    source = std::make_unique<GzipByteSource>(path, 0);
-  } else {
-    source = std::make_unique<FileByteSource>(path, 0);
+std::string niftiHeaderPath(const std::string& path) {
+  std::string header = companionPath(path, ".img", ".hdr");
+  return header.empty() ? path : header;
+}
+
+std::string niftiDataPath(const std::string& headerPath, const NiftiHeader& header) {
+  if (!header.pair) return headerPath;
+  std::string data = companionPath(headerPath, ".hdr", ".img");
+  if (data.empty()) {
+    throw Error(headerPath + ": the magic \"ni" + std::to_string(header.version) +
+                "\" says the data are in a separate .img file, but this is not a .hdr file");
   }
-  unsigned char bytes[kNiftiHeaderBytes];
+  return data;
+}
+
+NiftiHeader readNiftiHeader(const std::string& path) {
+  const std::string headerPath = niftiHeaderPath(path);
+  std::unique_ptr<ByteSource> source;
+  if (isGzip(headerPath)) {
+    source = std::make_unique<GzipByteSource>(headerPath, 0);
+  } else {
+    source = std::make_unique<FileByteSource>(headerPath, 0);
+  }
+  unsigned char bytes[kNifti2HeaderBytes];
   std::size_t got = source->read(bytes, sizeof bytes);
   try {
     return parseNiftiHeader(bytes, got);
   } catch (const Error& e) {
-    throw Error(path + ": " + e.what());
+    throw Error(headerPath + ": " + e.what());
   }
 }
 
-DenseGrid readNifti(const std::string& path, std::size_t maxBytes) {
-  const bool gz = isGzip(path);
-  NiftiHeader h = readNiftiHeader(path);
-  const std::size_t size = sampleSize(h.type);
-  const std::int64_t count = checkVolumeDims(path, h.dims, size, maxBytes);
-  const std::uint64_t dataBytes = static_cast<std::uint64_t>(count) * size;
+namespace {
 
-  DenseGrid grid;
-  std::unique_ptr<ByteSource> source;
-  if (gz) {
-    if (h.dataOffset > (std::uint64_t(1) << 30)) {
-      throw Error(path + ": vox_offset " + std::to_string(h.dataOffset) +
-                  " is too large for compressed data (at most 1 GiB)");
-    }
-    grid.allocate(h.dims, maxBytes);
-    source = std::make_unique<GzipByteSource>(path, 0);
-    if (source->skip(h.dataOffset) != h.dataOffset) {
-      throw Error(path + ": data offset " + std::to_string(h.dataOffset) +
-                  " is beyond the end of the data (" + std::to_string(source->position()) +
-                  " bytes inflated)");
-    }
-  } else {
-    const std::uint64_t fileBytes = fileSizeOf(path);
-    if (h.dataOffset > fileBytes) {
-      throw Error(path + ": data offset " + std::to_string(h.dataOffset) +
-                  " is beyond the end of the file (" + std::to_string(fileBytes) + " bytes)");
-    }
-    if (fileBytes - h.dataOffset != dataBytes) {
-      std::uint64_t have = fileBytes - h.dataOffset;
-      throw Error(path + ": data is " +
-                  (have < dataBytes ? std::to_string(dataBytes - have) + " bytes short"
-                                    : std::to_string(have - dataBytes) + " bytes longer than declared") +
-                  " (" + std::to_string(h.dims[0]) + "x" + std::to_string(h.dims[1]) + "x" +
-                  std::to_string(h.dims[2]) + " " + toString(h.type) + " = " + std::to_string(dataBytes) +
-                  " bytes from byte " + std::to_string(h.dataOffset) + ", file has " +
-                  std::to_string(fileBytes) + ")");
-    }
-    grid.allocate(h.dims, maxBytes);
-    source = std::make_unique<FileByteSource>(path, h.dataOffset);
+/// Opens the samples of frame `frame` of a plain data file, checking the file holds exactly the declared
+/// frames from `offset`.
+std::unique_ptr<ByteSource> openPlainFrame(const std::string& path, const NiftiHeader& h,
+                                           std::uint64_t frameBytes, std::uint64_t allBytes,
+                                           std::int64_t frame) {
+  const std::uint64_t fileBytes = fileSizeOf(path);
+  if (h.dataOffset > fileBytes) {
+    throw Error(path + ": data offset " + std::to_string(h.dataOffset) + " is beyond the end of the file (" +
+                std::to_string(fileBytes) + " bytes)");
   }
+  const std::uint64_t have = fileBytes - h.dataOffset;
+  if (have != allBytes) {
+    const auto& d = h.geometry.dims;
+    throw Error(path + ": data is " +
+                (have < allBytes ? std::to_string(allBytes - have) + " bytes short"
+                                 : std::to_string(have - allBytes) + " bytes longer than declared") +
+                " (" + std::to_string(d[0]) + "x" + std::to_string(d[1]) + "x" + std::to_string(d[2]) +
+                (h.frames > 1 ? "x" + std::to_string(h.frames) : std::string()) + " " + toString(h.type) +
+                " = " + std::to_string(allBytes) + " bytes from byte " + std::to_string(h.dataOffset) +
+                ", file has " + std::to_string(fileBytes) + ")");
+  }
+  return std::make_unique<FileByteSource>(path,
+                                          h.dataOffset + static_cast<std::uint64_t>(frame) * frameBytes);
+}
+
+/// Opens the inflated samples of frame `frame` of a compressed data file.
+std::unique_ptr<ByteSource> openCompressedFrame(const std::string& path, const NiftiHeader& h,
+                                                std::uint64_t frameBytes, std::int64_t frame) {
+  if (h.dataOffset > (std::uint64_t(1) << 30)) {
+    throw Error(path + ": vox_offset " + std::to_string(h.dataOffset) +
+                " is too large for compressed data (at most 1 GiB)");
+  }
+  auto source = std::make_unique<GzipByteSource>(path, 0);
+  const std::uint64_t start = h.dataOffset + static_cast<std::uint64_t>(frame) * frameBytes;
+  if (source->skip(start) != start) {
+    throw Error(path + ": " + (frame > 0 ? "frame " + std::to_string(frame) : std::string("data")) +
+                " starts beyond the end of the data (byte " + std::to_string(start) + ", " +
+                std::to_string(source->position()) + " bytes inflated)");
+  }
+  return source;
+}
+
+DenseGrid readNiftiFile(const std::string& path, std::size_t maxBytes, int frame) {
+  const std::string headerPath = niftiHeaderPath(path);
+  NiftiHeader h = readNiftiHeader(headerPath);
+  const std::string dataPath = niftiDataPath(headerPath, h);
+  const std::int64_t chosen = checkVolumeFrame(path, h.frames, frame);
+  const std::size_t size = sampleSize(h.type);
+  const std::int64_t count = checkVolumeDims(path, h.geometry.dims, size, maxBytes);
+  const std::uint64_t frameBytes = static_cast<std::uint64_t>(count) * size;
+  if (static_cast<std::uint64_t>(h.frames) > (std::uint64_t(1) << 62) / frameBytes) {
+    throw Error(path + ": " + std::to_string(h.frames) + " frames of " + std::to_string(frameBytes) +
+                " bytes do not fit 64 bits");
+  }
+  const std::uint64_t allBytes = frameBytes * static_cast<std::uint64_t>(h.frames);
+
+  const bool gz = isGzip(dataPath);
+  std::unique_ptr<ByteSource> source = gz ? openCompressedFrame(dataPath, h, frameBytes, chosen)
+                                          : openPlainFrame(dataPath, h, frameBytes, allBytes, chosen);
+  DenseGrid grid;
+  grid.allocate(h.geometry.dims, maxBytes);
   readSamplesInto(*source, h.type, h.endian, grid);
-  if (gz) source->expectEnd("compressed data");
+  if (gz && chosen == h.frames - 1) source->expectEnd("compressed data");
   if (h.slope != 0) {
     for (double& v : grid.values) v = h.slope * v + h.inter;
   }
-  grid.geometry.spacing = h.spacing;
-  grid.geometry.origin = h.origin;
-  grid.description = describeDenseFile(path, "NIfTI", h.type, h.dims);
+  grid.geometry = h.geometry;
+  grid.description = describeDenseFile(path, h.version == 1 ? "NIfTI" : "NIfTI-2", h.type, h.geometry.dims);
+  if (h.frames > 1)
+    grid.description += ", frame " + std::to_string(chosen) + " of " + std::to_string(h.frames);
   return grid;
+}
+
+}  // namespace
+
+DenseGrid readNifti(const std::string& path, std::size_t maxBytes, int frame) {
+  return readPrefixingErrors(path, [&] { return readNiftiFile(path, maxBytes, frame); });
 }
 
 namespace {
@@ -337,6 +527,83 @@ void put(unsigned char* header, std::size_t offset, T value) {
   std::memcpy(header + offset, &value, sizeof(T));
 }
 
+/// The placement of `geometry` in NIfTI's RAS world: the index-to-world columns and the origin.
+void rasPlacement(const GridGeometry& geometry, Mat3& columns, Vec3& origin) {
+  columns = geometry.direction * geometry.spacing.asDiagonal();
+  origin = geometry.origin;
+  Vec3 flip = Vec3::Ones();
+  if (geometry.space == WorldSpace::LPS) flip = Vec3(-1, -1, 1);
+  if (geometry.space == WorldSpace::LAS) flip = Vec3(-1, 1, 1);
+  columns = flip.asDiagonal() * columns;
+  origin = origin.cwiseProduct(flip);
+}
+
+/// The qform quaternion (b, c, d) and qfac of a direction that is a rotation, possibly with the third axis
+/// flipped (NIfTI-1 standard, nifti_mat44_to_quatern); false for a sheared direction.
+bool qformOf(Mat3 r, Vec3& bcd, double& qfac) {
+  if (!((r.transpose() * r - Mat3::Identity()).cwiseAbs().maxCoeff() < 1e-6)) return false;
+  qfac = r.determinant() < 0 ? -1.0 : 1.0;
+  r.col(2) *= qfac;
+  double a = r.trace() + 1, b, c, d;
+  if (a > 0.5) {
+    a = 0.5 * std::sqrt(a);
+    b = 0.25 * (r(2, 1) - r(1, 2)) / a;
+    c = 0.25 * (r(0, 2) - r(2, 0)) / a;
+    d = 0.25 * (r(1, 0) - r(0, 1)) / a;
+  } else if (1 + r(0, 0) - (r(1, 1) + r(2, 2)) > 1) {
+    b = 0.5 * std::sqrt(1 + r(0, 0) - (r(1, 1) + r(2, 2)));
+    c = 0.25 * (r(0, 1) + r(1, 0)) / b;
+    d = 0.25 * (r(0, 2) + r(2, 0)) / b;
+    a = 0.25 * (r(2, 1) - r(1, 2)) / b;
+  } else if (1 + r(1, 1) - (r(0, 0) + r(2, 2)) > 1) {
+    c = 0.5 * std::sqrt(1 + r(1, 1) - (r(0, 0) + r(2, 2)));
+    b = 0.25 * (r(0, 1) + r(1, 0)) / c;
+    d = 0.25 * (r(1, 2) + r(2, 1)) / c;
+    a = 0.25 * (r(0, 2) - r(2, 0)) / c;
+  } else {
+    d = 0.5 * std::sqrt(1 + r(2, 2) - (r(0, 0) + r(1, 1)));
+    b = 0.25 * (r(0, 2) + r(2, 0)) / d;
+    c = 0.25 * (r(1, 2) + r(2, 1)) / d;
+    a = 0.25 * (r(1, 0) - r(0, 1)) / d;
+  }
+  if (a < 0)
+    bcd = Vec3(-b, -c, -d);
+  else
+    bcd = Vec3(b, c, d);
+  return true;
+}
+
+/// Header fields of the placement: pixdim[0..3], qform and sform.
+void putPlacement(unsigned char* header, const GridGeometry& g) {
+  Mat3 columns;
+  Vec3 origin;
+  rasPlacement(g, columns, origin);
+  Vec3 bcd = Vec3::Zero();
+  double qfac = 1;
+  const bool hasQform = qformOf(columns * g.spacing.cwiseInverse().asDiagonal(), bcd, qfac);
+  float pixdim[8] = {static_cast<float>(qfac),
+                     static_cast<float>(g.spacing[0]),
+                     static_cast<float>(g.spacing[1]),
+                     static_cast<float>(g.spacing[2]),
+                     1,
+                     1,
+                     1,
+                     1};
+  std::memcpy(header + kNifti1.pixdim, pixdim, sizeof pixdim);
+  put<std::int16_t>(header, kNifti1.qformCode, hasQform ? 1 : 0);
+  put<std::int16_t>(header, kNifti1.sformCode, 1);
+  for (int a = 0; a < 3; ++a) {
+    put<float>(header, kNifti1.quatern + 4 * static_cast<std::size_t>(a), static_cast<float>(bcd[a]));
+    put<float>(header, kNifti1.qoffset + 4 * static_cast<std::size_t>(a), static_cast<float>(origin[a]));
+  }
+  for (int r = 0; r < 3; ++r) {
+    const std::size_t row = kNifti1.srow + 16 * static_cast<std::size_t>(r);
+    for (int c = 0; c < 3; ++c)
+      put<float>(header, row + 4 * static_cast<std::size_t>(c), static_cast<float>(columns(r, c)));
+    put<float>(header, row + 12, static_cast<float>(origin[r]));
+  }
+}
+
 }  // namespace
 
 std::size_t writeNifti(const std::string& path, const DenseGrid& grid, const NiftiWriteOptions& options) {
@@ -352,7 +619,7 @@ std::size_t writeNifti(const std::string& path, const DenseGrid& grid, const Nif
   }
   if (hostEndian() != Endian::Little) throw Error(path + ": writing NIfTI needs a little-endian machine");
   unsigned char header[kWriteOffset] = {};
-  put<std::int32_t>(header, kSizeofHdr, 348);
+  put<std::int32_t>(header, 0, 348);
   std::int16_t dim[8] = {3,
                          static_cast<std::int16_t>(g.dims[0]),
                          static_cast<std::int16_t>(g.dims[1]),
@@ -361,35 +628,15 @@ std::size_t writeNifti(const std::string& path, const DenseGrid& grid, const Nif
                          1,
                          1,
                          1};
-  std::memcpy(header + kDim, dim, sizeof dim);
-  put<std::int16_t>(header, kDatatype, 16);
-  put<std::int16_t>(header, kBitpix, 32);
-  float pixdim[8] = {1.0f,
-                     static_cast<float>(g.spacing[0]),
-                     static_cast<float>(g.spacing[1]),
-                     static_cast<float>(g.spacing[2]),
-                     1,
-                     1,
-                     1,
-                     1};
-  std::memcpy(header + kPixdim, pixdim, sizeof pixdim);
-  put<float>(header, kVoxOffset, static_cast<float>(kWriteOffset));
-  put<float>(header, kSclSlope, static_cast<float>(options.sclSlope));
-  put<float>(header, kSclInter, static_cast<float>(options.sclInter));
+  std::memcpy(header + kNifti1.dim, dim, sizeof dim);
+  put<std::int16_t>(header, kNifti1.datatype, 16);
+  put<std::int16_t>(header, kNifti1.bitpix, 32);
+  putPlacement(header, g);
+  put<float>(header, kNifti1.voxOffset, static_cast<float>(kWriteOffset));
+  put<float>(header, kNifti1.sclSlope, static_cast<float>(options.sclSlope));
+  put<float>(header, kNifti1.sclInter, static_cast<float>(options.sclInter));
   header[123] = 2;  // xyzt_units: millimetres
-  put<std::int16_t>(header, kQformCode, 1);
-  put<std::int16_t>(header, kSformCode, 1);
-  for (int a = 0; a < 3; ++a) {
-    put<float>(header, kQuatern + 4 * static_cast<std::size_t>(a), 0.0f);
-    put<float>(header, kQoffset + 4 * static_cast<std::size_t>(a), static_cast<float>(g.origin[a]));
-  }
-  const std::size_t rows[3] = {kSrowX, kSrowY, kSrowZ};
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c)
-      put<float>(header, rows[r] + 4 * static_cast<std::size_t>(c), r == c ? pixdim[r + 1] : 0.0f);
-    put<float>(header, rows[r] + 12, static_cast<float>(g.origin[r]));
-  }
-  std::memcpy(header + kMagic, "n+1\0", 4);
+  std::memcpy(header + kNifti1.magic, "n+1\0", 4);
 
   const bool gzip = endsWithNoCase(path, ".gz");
   const double slope = options.sclSlope != 0 ? options.sclSlope : 1.0;

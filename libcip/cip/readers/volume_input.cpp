@@ -59,6 +59,32 @@ bool endsWithNoCase(const std::string& path, const std::string& suffix) {
                     });
 }
 
+std::int64_t checkVolumeFrame(const std::string& path, std::int64_t frames, int frame) {
+  if (frame < 0) {
+    if (frames > 1) {
+      throw Error(path + ": the file holds " + std::to_string(frames) +
+                  " frames (a 4-D series); choose one with --frame 0.." + std::to_string(frames - 1));
+    }
+    return 0;
+  }
+  if (frame >= frames) {
+    throw Error(path + ": frame " + std::to_string(frame) + " is out of range: the file holds " +
+                std::to_string(frames) +
+                (frames == 1 ? " frame" : " frames (0.." + std::to_string(frames - 1) + ")"));
+  }
+  return frame;
+}
+
+DenseGrid readPrefixingErrors(const std::string& path, const std::function<DenseGrid()>& read) {
+  try {
+    return read();
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    if (what.compare(0, path.size() + 1, path + ":") == 0) throw;
+    throw Error(path + ": " + what);
+  }
+}
+
 std::uint64_t ByteSource::skip(std::uint64_t n) {
   std::vector<unsigned char> buffer(static_cast<std::size_t>(std::min<std::uint64_t>(n, kSlabBytes)));
   std::uint64_t done = 0;

@@ -10,6 +10,7 @@
 #include <array>
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -92,6 +93,14 @@ class GzipByteSource : public ByteSource {
 /// Returns the number of points. Errors are "<path>: ..." and name the dims and the size.
 std::int64_t checkVolumeDims(const std::string& path, const std::array<std::int64_t, 3>& dims,
                              std::size_t bytesPerSample, std::size_t maxBytes);
+
+/// The frame of a series of `frames` frames to read: `frame` when it is in range; for frame -1 (none chosen)
+/// 0 when the file holds one frame. Errors are "<path>: ..." and name the frame count.
+std::int64_t checkVolumeFrame(const std::string& path, std::int64_t frames, int frame);
+
+/// Runs `read`; a cip::Error whose message does not start with "<path>:" (one about a data file beside the
+/// header, say) is thrown again with "<path>: " in front, so that every message starts with the path given.
+DenseGrid readPrefixingErrors(const std::string& path, const std::function<DenseGrid()>& read);
 
 /// Fills the already allocated `grid.values` with samples read from `source`, x fastest, in slabs of a few
 /// MiB. Throws "<path>: data ends after X of N bytes" when the source runs out early.

@@ -1,9 +1,12 @@
 #include "cip/readers/volume_reader.h"
 
+#include <cmath>
 #include <filesystem>
 #include <sstream>
+#include <vector>
 
 #include "cip/core/error.h"
+#include "cip/readers/metaimage_reader.h"
 #include "cip/readers/nifti_reader.h"
 #include "cip/readers/nrrd_reader.h"
 #include "cip/readers/vdb_reader.h"
@@ -21,13 +24,17 @@ const char* toString(VolumeFormat format) {
       return "NIfTI";
     case VolumeFormat::Vdb:
       return "VDB";
+    case VolumeFormat::MetaImage:
+      return "MetaImage";
   }
   return "unknown";
 }
 
 VolumeFormat volumeFormatOf(const std::string& path) {
   if (endsWithNoCase(path, ".nrrd") || endsWithNoCase(path, ".nhdr")) return VolumeFormat::Nrrd;
-  if (endsWithNoCase(path, ".nii") || endsWithNoCase(path, ".nii.gz")) return VolumeFormat::Nifti;
+  for (const char* suffix : {".nii", ".nii.gz", ".hdr", ".hdr.gz", ".img", ".img.gz"})
+    if (endsWithNoCase(path, suffix)) return VolumeFormat::Nifti;
+  if (endsWithNoCase(path, ".mha") || endsWithNoCase(path, ".mhd")) return VolumeFormat::MetaImage;
   if (endsWithNoCase(path, ".vdb")) return VolumeFormat::Vdb;
   return VolumeFormat::Raw;
 }
@@ -36,24 +43,56 @@ std::uint64_t volumeFileBytes(const std::string& path) {
   std::error_code ec;
   std::uint64_t bytes = std::filesystem::file_size(path, ec);
   if (ec) return 0;
-  if (volumeFormatOf(path) != VolumeFormat::Nrrd) return bytes;
+  std::vector<std::string> dataFiles;
   try {
-    const NrrdHeader h = readNrrdHeader(path);
-    if (!h.attached) {
-      const std::uint64_t data = std::filesystem::file_size(nrrdDataPath(path, h), ec);
-      if (!ec) bytes += data;
+    switch (volumeFormatOf(path)) {
+      case VolumeFormat::Nrrd:
+        if (const NrrdHeader h = readNrrdHeader(path); !h.attached)
+          dataFiles.push_back(nrrdDataPath(path, h));
+        break;
+      case VolumeFormat::Nifti: {
+        const std::string header = niftiHeaderPath(path);
+        const std::string data = niftiDataPath(header, readNiftiHeader(header));
+        for (const std::string& file : {header, data})
+          if (file != path) dataFiles.push_back(file);
+        break;
+      }
+      case VolumeFormat::MetaImage:
+        if (const MetaImageHeader h = readMetaImageHeader(path); !h.local) dataFiles = h.dataFiles;
+        break;
+      default:
+        break;
     }
   } catch (const Error&) {
   }
+  for (const std::string& file : dataFiles) {
+    const std::uint64_t data = std::filesystem::file_size(file, ec);
+    if (!ec) bytes += data;
+  }
   return bytes;
 }
+
+namespace {
+
+/// A .img (or .img.gz) file without the .hdr of a NIfTI pair beside it: raw data when a RawFormat is given.
+bool isLoneImg(const std::string& path) {
+  if (!endsWithNoCase(path, ".img") && !endsWithNoCase(path, ".img.gz")) return false;
+  std::error_code ec;
+  return !std::filesystem::exists(niftiHeaderPath(path), ec);
+}
+
+}  // namespace
 
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options) {
   switch (volumeFormatOf(path)) {
     case VolumeFormat::Nrrd:
       return fromDense(readNrrd(path, options.maxBytes));
     case VolumeFormat::Nifti:
-      return fromDense(readNifti(path, options.maxBytes));
+      if (!(options.raw && isLoneImg(path)))
+        return fromDense(readNifti(path, options.maxBytes, options.frame));
+      break;
+    case VolumeFormat::MetaImage:
+      return fromDense(readMetaImage(path, options.maxBytes, options.frame));
     case VolumeFormat::Vdb: {
       VdbReadOptions vdb;
       vdb.gridName = options.vdbGrid;
@@ -67,7 +106,8 @@ SparseVolume readVolume(const std::string& path, const VolumeReadOptions& option
   }
   if (!options.raw) {
     throw Error(path +
-                ": not a .nrrd, .nhdr, .nii, .nii.gz or .vdb file; reading it as raw data needs its dims "
+                ": not a .nrrd, .nhdr, .nii, .nii.gz, .hdr, .img, .mha, .mhd or .vdb file; reading it as raw "
+                "data needs its dims "
                 "and sample type");
   }
   return fromDense(readRaw(path, *options.raw, options.maxBytes));
@@ -79,6 +119,18 @@ std::string describeVolume(const SparseVolume& volume) {
   s << volume.description;
   if (!volume.dense()) s << ", grid " << g.dims[0] << "x" << g.dims[1] << "x" << g.dims[2];
   s << ", spacing " << g.spacing[0] << " " << g.spacing[1] << " " << g.spacing[2];
+  if (!g.axisAligned()) {
+    s << ", axes";
+    for (int a = 0; a < 3; ++a) {
+      s << " (";
+      for (int r = 0; r < 3; ++r) {
+        const double v = std::round(g.direction(r, a) * 1e4) / 1e4;
+        s << (r ? " " : "") << (v == 0 ? 0.0 : v);
+      }
+      s << ")";
+    }
+  }
+  if (g.space != WorldSpace::Unspecified) s << ", " << toString(g.space);
   if (!volume.dense())
     s << ", " << volume.bricks.size() << (volume.bricks.size() == 1 ? " brick" : " bricks");
   return s.str();

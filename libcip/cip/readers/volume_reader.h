@@ -3,9 +3,12 @@
 /// SparseVolume that buildModel takes directly (buildModel(volume.geometry, volume.bricks, options,
 /// volume.description)).
 ///
-/// By name (case-insensitive): .nrrd/.nhdr -> NRRD, .nii/.nii.gz -> NIfTI-1, .vdb -> OpenVDB (sparse bricks),
-/// anything else -> raw, which needs a RawFormat (dims, sample type, ...). A known extension always wins over
-/// a RawFormat. Dense formats come back as one brick owning every cell (fromDense).
+/// By name (case-insensitive): .nrrd/.nhdr -> NRRD, .nii/.nii.gz/.hdr/.img (and .hdr.gz/.img.gz) -> NIfTI-1
+/// or NIfTI-2, .mha/.mhd -> MetaImage, .vdb -> OpenVDB (sparse bricks), anything else -> raw, which needs a
+/// RawFormat (dims, sample type, ...). A known extension always wins over a RawFormat, except for a .img
+/// without a .hdr beside it, which a RawFormat reads as raw data. Dense formats come back as one brick owning
+/// every cell (fromDense), placed as the file says (origin, spacing, direction, world space:
+/// docs/volumes.md).
 #pragma once
 #include <optional>
 #include <string>
@@ -15,7 +18,7 @@
 
 namespace cip {
 
-enum class VolumeFormat : std::uint8_t { Raw, Nrrd, Nifti, Vdb };
+enum class VolumeFormat : std::uint8_t { Raw, Nrrd, Nifti, Vdb, MetaImage };
 const char* toString(VolumeFormat format);
 
 /// The format implied by the file name (Raw for unknown extensions).
@@ -34,12 +37,13 @@ struct VolumeReadOptions {
 /// without options.raw is an error that says which parameters are missing.
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options = {});
 
-/// Bytes on disk of the volume file `path`: the file, plus for an NRRD header with detached data the data
-/// file it names (a header that cannot be read, or a missing data file, counts as nothing more); 0 when
-/// `path` is no file.
+/// Bytes on disk of the volume file `path`: the file, plus for an NRRD header with detached data, a NIfTI
+/// .hdr/.img pair or a MetaImage .mhd the data files it names (a header that cannot be read, or a missing
+/// data file, counts as nothing more); 0 when `path` is no file.
 std::uint64_t volumeFileBytes(const std::string& path);
 
-/// Short description for statistics, e.g. "tooth.nhdr (NRRD uint8 103x94x161), spacing 1 1 1" or, for VDB,
+/// Short description for statistics, e.g. "tooth.nhdr (NRRD uint8 103x94x161), spacing 1 1 1" (followed by
+/// the index axes' world directions and the world space when they are not the identity) or, for VDB,
 /// "sphere.vdb grid ls_sphere (VDB float level set, ...), grid 127x127x127, spacing 0.05 0.05 0.05, 125
 /// bricks".
 std::string describeVolume(const SparseVolume& volume);
