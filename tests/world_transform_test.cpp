@@ -145,8 +145,8 @@ TEST(WorldTransform, MovedMeshesKeepWindingAndNormalsOutward) {
   }
 }
 
-// The model file carries the orientation and anatomical frame (format 2; format 1 refuses rather than drop
-// them), and rejects a damaged orientation block.
+// The model file carries the orientation and anatomical frame (both versions), and rejects a damaged
+// orientation block.
 TEST(WorldTransform, ModelFilesCarryTheOrientation) {
   Model model = test::fieldModel("torus", 10, PatchMethod::Fitted);
   const std::vector<std::uint8_t> axisAligned = serializeModel(model);
@@ -162,9 +162,13 @@ TEST(WorldTransform, ModelFilesCarryTheOrientation) {
   EXPECT_TRUE(plainBack.geometry.axisAligned());
   EXPECT_EQ(plainBack.geometry.space, WorldSpace::Unspecified);
 
-  ModelFileOptions v1;
+  ModelFileOptions v1;  // version 1 (lossless) carries it too
   v1.version = 1;
-  EXPECT_THROW(serializeModel(model, v1), Error);
+  const std::vector<std::uint8_t> v1Bytes = serializeModel(model, v1);
+  const Model v1Back = parseModel(v1Bytes.data(), v1Bytes.size(), "oriented-v1.cip");
+  EXPECT_EQ(v1Back.geometry.direction, model.geometry.direction);
+  EXPECT_EQ(v1Back.geometry.space, WorldSpace::LPS);
+  EXPECT_EQ(v1Back.vertices.size(), model.vertices.size());
 
   // A direction column that is not a unit vector: the block sits right after the source description.
   std::vector<std::uint8_t> damaged = bytes;
