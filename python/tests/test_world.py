@@ -143,3 +143,54 @@ def test_space_without_anatomical_frame_is_an_error(tmp_path, extract_exe):
     r = subprocess.run([extract_exe, str(raw), "--dims", "17,20,24", "--type", "float32", "--iso", "1", "-o",
                         str(tmp_path / "m.cip"), "--space", "ras", "--quiet"], capture_output=True, text=True)
     assert r.returncode != 0 and "anatomical frame" in r.stderr
+
+
+def write_nrrd(path, data, affine, space="left-posterior-superior"):
+    """A hand-written NRRD header with the affine's columns as space directions, data attached (x fastest)."""
+    cols = affine[:3, :3].T
+    header = ("NRRD0004\ntype: float\ndimension: 3\nspace: %s\nsizes: %d %d %d\n"
+              "space directions: %s\nspace origin: (%r,%r,%r)\nendian: little\nencoding: raw\n\n") % (
+        space, *data.shape, " ".join("(%r,%r,%r)" % tuple(c) for c in cols), *affine[:3, 3])
+    with open(path, "wb") as f:
+        f.write(header.encode())
+        f.write(data.astype("<f4").tobytes(order="F"))
+
+
+def write_metaimage(path, data, affine):
+    """A hand-written MetaImage header (ITK's convention: TransformMatrix lists the direction's columns)."""
+    spacing = np.linalg.norm(affine[:3, :3], axis=0)
+    direction = affine[:3, :3] / spacing
+    raw = os.path.basename(path)[:-4] + ".raw"
+    header = ("ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n"
+              "TransformMatrix = %s\nOffset = %s\nElementSpacing = %s\nDimSize = %d %d %d\n"
+              "ElementType = MET_FLOAT\nElementDataFile = %s\n") % (
+        " ".join(repr(v) for v in direction.T.ravel()), " ".join(repr(v) for v in affine[:3, 3]),
+        " ".join(repr(v) for v in spacing), *data.shape, raw)
+    with open(path, "w") as f:
+        f.write(header)
+    with open(os.path.join(os.path.dirname(path), raw), "wb") as f:
+        f.write(data.astype("<f4").tobytes(order="F"))
+
+
+@pytest.mark.parametrize("fmt", ["nrrd", "mhd"])
+def test_lps_formats_place_the_mesh_through_their_affine(tmp_path, extract_exe, fmt):
+    """NRRD (space directions) and MetaImage (TransformMatrix) headers written here with a rotated, flipped
+    grid: the mesh is scikit-image's mapped through the header's affine, in LPS, wound outward."""
+    affine = AFFINES["rotated_flipped"]
+    data = blob()
+    path = str(tmp_path / ("v." + fmt))
+    (write_nrrd if fmt == "nrrd" else write_metaimage)(path, data, affine)
+    verts, faces, stats = run_extract(extract_exe, path, str(tmp_path), "--model-version", "1")
+    assert stats["world"]["space"] == "LPS"
+    np.testing.assert_allclose(np.array(stats["world"]["index_to_world"]), affine, atol=1e-9)
+    sk_verts, _, _, _ = measure.marching_cubes(data.astype(np.float32), 1.0)
+    world = nib.affines.apply_affine(affine, sk_verts)
+    d1, _ = spatial.cKDTree(world).query(verts)
+    d2, _ = spatial.cKDTree(verts).query(world)
+    assert max(d1.max(), d2.max()) < 1e-5 * np.abs(world).max()
+    assert signed_volume(verts, faces) > 0
+    ras_dir = tmp_path / "ras"
+    ras_dir.mkdir()
+    ras_verts, _, ras_stats = run_extract(extract_exe, path, str(ras_dir), "--model-version", "1", "--space", "ras")
+    assert ras_stats["world"]["space"] == "RAS"
+    np.testing.assert_allclose(ras_verts, verts * np.array([-1, -1, 1]), atol=1e-5)
