@@ -3,7 +3,7 @@
 # Usage: bash scripts/install-deps.sh [extra-package ...]   (run as root, or with sudo available)
 set -euo pipefail
 packages=(cmake ninja-build g++ pkg-config
-  libeigen3-dev libtbb-dev zlib1g-dev libcli11-dev nlohmann-json3-dev libopenexr-dev libpng-dev
+  libeigen3-dev libtbb-dev zlib1g-dev libbz2-dev libgdcm-dev libcli11-dev nlohmann-json3-dev libopenexr-dev libpng-dev
   libopenvdb-dev libboost-iostreams-dev libembree-dev libopenimageio-dev
   libgtest-dev libgmock-dev libbenchmark-dev libtinygltf-dev libzstd-dev libmeshoptimizer-dev draco
   pybind11-dev python3-pybind11 python3-numpy python3-pytest python3-skimage python3-meshio python3-openimageio "$@")

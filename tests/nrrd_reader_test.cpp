@@ -307,7 +307,7 @@ TEST(NrrdReader, HugeDimsFailBeforeAllocating) {
                  "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 1048576 1048576 1024\nencoding: raw\n"
                  "data file: m.raw\n");
   expectError([&] { readNrrd(dir.file("m.nhdr")); }, {"m.nhdr", "MiB", "1048576x1048576x1024"});
-  expectError([&] { readNrrd(sharedData("tooth.nhdr"), 1 << 20); }, {"tooth.nhdr", "MiB"});
+  expectError([&] { readNrrd(sharedData("tooth.nhdr"), {1 << 20}); }, {"tooth.nhdr", "MiB"});
 }
 
 }  // namespace

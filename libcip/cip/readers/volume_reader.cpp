@@ -4,6 +4,7 @@
 #include <sstream>
 
 #include "cip/core/error.h"
+#include "cip/readers/dicom_reader.h"
 #include "cip/readers/nifti_reader.h"
 #include "cip/readers/nrrd_reader.h"
 #include "cip/readers/vdb_reader.h"
@@ -21,6 +22,8 @@ const char* toString(VolumeFormat format) {
       return "NIfTI";
     case VolumeFormat::Vdb:
       return "VDB";
+    case VolumeFormat::Dicom:
+      return "DICOM";
   }
   return "unknown";
 }
@@ -29,18 +32,28 @@ VolumeFormat volumeFormatOf(const std::string& path) {
   if (endsWithNoCase(path, ".nrrd") || endsWithNoCase(path, ".nhdr")) return VolumeFormat::Nrrd;
   if (endsWithNoCase(path, ".nii") || endsWithNoCase(path, ".nii.gz")) return VolumeFormat::Nifti;
   if (endsWithNoCase(path, ".vdb")) return VolumeFormat::Vdb;
+  std::error_code ec;
+  if (endsWithNoCase(path, ".dcm") || std::filesystem::is_directory(path, ec)) return VolumeFormat::Dicom;
   return VolumeFormat::Raw;
 }
 
 std::uint64_t volumeFileBytes(const std::string& path) {
   std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    std::uint64_t bytes = 0;
+    for (const auto& entry : std::filesystem::directory_iterator(path, ec)) {
+      if (entry.is_regular_file(ec)) bytes += entry.file_size(ec);
+    }
+    return bytes;
+  }
   std::uint64_t bytes = std::filesystem::file_size(path, ec);
   if (ec) return 0;
   if (volumeFormatOf(path) != VolumeFormat::Nrrd) return bytes;
   try {
     const NrrdHeader h = readNrrdHeader(path);
-    if (!h.attached) {
-      const std::uint64_t data = std::filesystem::file_size(nrrdDataPath(path, h), ec);
+    if (h.attached) return bytes;
+    for (const std::string& file : nrrdDataPaths(path, h)) {
+      const std::uint64_t data = std::filesystem::file_size(file, ec);
       if (!ec) bytes += data;
     }
   } catch (const Error&) {
@@ -51,7 +64,7 @@ std::uint64_t volumeFileBytes(const std::string& path) {
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options) {
   switch (volumeFormatOf(path)) {
     case VolumeFormat::Nrrd:
-      return fromDense(readNrrd(path, options.maxBytes));
+      return fromDense(readNrrd(path, {options.maxBytes, options.frame}));
     case VolumeFormat::Nifti:
       return fromDense(readNifti(path, options.maxBytes));
     case VolumeFormat::Vdb: {
@@ -62,12 +75,18 @@ SparseVolume readVolume(const std::string& path, const VolumeReadOptions& option
       vdb.maxBytes = options.maxBytes;
       return readVdb(path, vdb);
     }
+    case VolumeFormat::Dicom:
+      if (options.frame > 0)
+        throw Error(path + ": frame " + std::to_string(options.frame) +
+                    " is out of range: a DICOM series holds 1 frame");
+      return fromDense(readDicom(path, options.maxBytes));
     case VolumeFormat::Raw:
       break;
   }
   if (!options.raw) {
     throw Error(path +
-                ": not a .nrrd, .nhdr, .nii, .nii.gz or .vdb file; reading it as raw data needs its dims "
+                ": not a .nrrd, .nhdr, .nii, .nii.gz, .vdb or .dcm file or a DICOM folder; reading it as raw "
+                "data needs its dims "
                 "and sample type");
   }
   return fromDense(readRaw(path, *options.raw, options.maxBytes));

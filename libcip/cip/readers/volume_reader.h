@@ -4,8 +4,9 @@
 /// volume.description)).
 ///
 /// By name (case-insensitive): .nrrd/.nhdr -> NRRD, .nii/.nii.gz -> NIfTI-1, .vdb -> OpenVDB (sparse bricks),
-/// anything else -> raw, which needs a RawFormat (dims, sample type, ...). A known extension always wins over
-/// a RawFormat. Dense formats come back as one brick owning every cell (fromDense).
+/// a folder or .dcm -> DICOM series (dicom_reader.h), anything else -> raw, which needs a RawFormat (dims,
+/// sample type, ...). A known extension always wins over a RawFormat. Dense formats come back as one brick
+/// owning every cell (fromDense).
 #pragma once
 #include <optional>
 #include <string>
@@ -15,10 +16,10 @@
 
 namespace cip {
 
-enum class VolumeFormat : std::uint8_t { Raw, Nrrd, Nifti, Vdb };
+enum class VolumeFormat : std::uint8_t { Raw, Nrrd, Nifti, Vdb, Dicom };
 const char* toString(VolumeFormat format);
 
-/// The format implied by the file name (Raw for unknown extensions).
+/// The format implied by the file name (Raw for unknown extensions; DICOM for an existing folder).
 VolumeFormat volumeFormatOf(const std::string& path);
 
 struct VolumeReadOptions {
@@ -35,8 +36,8 @@ struct VolumeReadOptions {
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options = {});
 
 /// Bytes on disk of the volume file `path`: the file, plus for an NRRD header with detached data the data
-/// file it names (a header that cannot be read, or a missing data file, counts as nothing more); 0 when
-/// `path` is no file.
+/// files it names, or for a folder (DICOM series) its files (a header that cannot be read, or a missing data
+/// file, counts as nothing more); 0 when `path` is no file.
 std::uint64_t volumeFileBytes(const std::string& path);
 
 /// Short description for statistics, e.g. "tooth.nhdr (NRRD uint8 103x94x161), spacing 1 1 1" or, for VDB,
