@@ -1,5 +1,6 @@
 #include "cip/core/grid_geometry.h"
 
+#include <Eigen/LU>  // determinant()
 #include <cmath>
 #include <string>
 

@@ -1,5 +1,7 @@
 #include "cip/readers/dicom_reader.h"
 
+#include <gdcmDicts.h>
+#include <gdcmGlobal.h>
 #include <gdcmImage.h>
 #include <gdcmImageReader.h>
 #include <gdcmReader.h>
@@ -7,7 +9,9 @@
 #include <gdcmTag.h>
 #include <gdcmTrace.h>
 
+#include <Eigen/Geometry>  // cross()
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -99,23 +103,165 @@ double optional(const gdcm::StringFilter& filter, const gdcm::Tag& tag, double f
   return v.size() == 1 ? v[0] : fallback;
 }
 
-bool hasDicmPreamble(const std::string& file) {
+/// A structural walk over the elements of a DICOM file, checking that every element, sequence and item lies
+/// within the file before GDCM parses it: GDCM aborts (assertions) on some truncated or malformed files
+/// instead of failing. Throws "<file>: ..." for a file that does not hold together.
+class DicomStructure {
+ public:
+  DicomStructure(std::string file, std::string bytes) : file_(std::move(file)), b_(std::move(bytes)) {}
+
+  /// Walks the file meta information (explicit VR little endian) and then the data set in its transfer
+  /// syntax (implicit or explicit VR little endian; others are refused).
+  void check() {
+    std::size_t pos = 132;
+    std::string syntax;
+    std::uint32_t last = 0;
+    std::uint64_t metaEnd = 0;
+    while (pos + 2 <= b_.size() && u16(pos) == 0x0002) {
+      const std::size_t start = pos;
+      pos = element(pos, true, 0, last);
+      const std::uint32_t elem = u16(start + 2);
+      if (elem == 0x0000 && pos - start == 12) metaEnd = pos + u32(start + 8);
+      if (elem == 0x0010) syntax = b_.substr(start + 8, pos - start - 8);
+    }
+    if (metaEnd != pos) fail("malformed DICOM file meta information (its group length does not match)");
+    while (!syntax.empty() && (syntax.back() == '\0' || syntax.back() == ' ')) syntax.pop_back();
+    bool explicitVr = true;
+    if (syntax == "1.2.840.10008.1.2") {
+      explicitVr = false;
+    } else if (syntax == "1.2.840.10008.1.2.2" || syntax == "1.2.840.10008.1.2.1.99" || syntax.empty()) {
+      fail("transfer syntax '" + syntax + "' (big endian, deflated or none) is not supported");
+    }
+    if (pos >= b_.size()) fail("truncated DICOM file (no data set after the file meta information)");
+    last = 0;
+    while (pos < b_.size()) pos = element(pos, explicitVr, 0, last);
+  }
+
+ private:
+  [[noreturn]] void fail(const std::string& what) const { throw Error(file_ + ": " + what); }
+  void need(std::size_t pos, std::uint64_t n) const {
+    if (pos > b_.size() || n > b_.size() - pos)
+      fail("truncated or malformed DICOM file (at byte " + std::to_string(pos) + ")");
+  }
+  std::uint32_t u16(std::size_t p) const {
+    return static_cast<unsigned char>(b_[p]) |
+           (static_cast<std::uint32_t>(static_cast<unsigned char>(b_[p + 1])) << 8);
+  }
+  std::uint32_t u32(std::size_t p) const { return u16(p) | (u16(p + 2) << 16); }
+  /// A public element whose VR the dictionary does not allow, or a single binary number of the wrong size:
+  /// GDCM asserts on both when it reads the element as an attribute.
+  void checkAgainstDictionary(std::uint32_t tag, const std::string& vr, std::uint32_t length, bool longForm,
+                              std::size_t pos) const {
+    const gdcm::Tag t(static_cast<std::uint16_t>(tag >> 16), static_cast<std::uint16_t>(tag & 0xffff));
+    if (t.IsPrivate() || t.GetElement() == 0) return;
+    const gdcm::DictEntry& entry = gdcm::Global::GetInstance().GetDicts().GetDictEntry(t);
+    const gdcm::VR expected = entry.GetVR();
+    const gdcm::VR found(gdcm::VR::GetVRType(vr.c_str()));
+    const std::string where = "element (" + hex(tag) + ") at byte " + std::to_string(pos);
+    if (expected != gdcm::VR::INVALID && !expected.Compatible(found)) {
+      fail("malformed DICOM file: " + where + " has VR " + vr + ", the standard says " +
+           gdcm::VR::GetVRString(expected));
+    }
+    const std::size_t size = isOneOf(vr, "US SS") ? 2 : isOneOf(vr, "UL SL FL AT") ? 4 : vr == "FD" ? 8 : 0;
+    if (!longForm && size > 0 && (length % size != 0 || (entry.GetVM() == gdcm::VM::VM1 && length != size))) {
+      fail("malformed DICOM file: " + where + " has " + std::to_string(length) + " bytes of " + vr);
+    }
+  }
+
+  /// True when the two letters `vr` are one of the blank-separated `list`.
+  static bool isOneOf(const std::string& vr, const std::string& list) {
+    for (std::size_t i = 0; i + 2 <= list.size(); i += 3)
+      if (list.compare(i, 2, vr) == 0) return true;
+    return false;
+  }
+  static std::string hex(std::uint32_t tag) {
+    char text[16];
+    std::snprintf(text, sizeof(text), "%04x,%04x", tag >> 16, tag & 0xffff);
+    return text;
+  }
+
+  /// One element at `pos`, after the element with tag `last` of the same data set (tags ascend); returns the
+  /// position after it.
+  std::size_t element(std::size_t pos, bool explicitVr, int depth, std::uint32_t& last) {
+    need(pos, 8);
+    const std::uint32_t tag = (u16(pos) << 16) | u16(pos + 2);
+    if (u16(pos) == 0xfffe || tag < last || (tag == last && last != 0)) {
+      fail("malformed DICOM file: element (" + hex(tag) + ") at byte " + std::to_string(pos) +
+           " is out of order");
+    }
+    last = tag;
+    std::size_t header = 8;
+    std::uint32_t length = u32(pos + 4);
+    if (explicitVr) {
+      const std::string vr = b_.substr(pos + 4, 2);
+      const bool longForm = isOneOf(vr, "OB OD OF OL OV OW SQ SV UC UN UR UT UV");
+      if (!longForm && !isOneOf(vr, "AE AS AT CS DA DS DT FL FD IS LO LT PN SH SL SS ST TM UI UL US")) {
+        fail("malformed DICOM element (" + hex(tag) + ") at byte " + std::to_string(pos));
+      }
+      checkAgainstDictionary(tag, vr, longForm ? 0 : u16(pos + 6), longForm, pos);
+      length = longForm ? (need(pos, 12), u32(pos + 8)) : u16(pos + 6);
+      header = longForm ? 12 : 8;
+    }
+    pos += header;
+    if (length == 0xffffffffu) return items(pos, explicitVr, depth + 1);
+    need(pos, length);
+    return pos + length;
+  }
+
+  /// The items of a sequence or encapsulated pixel data of undefined length, up to its delimiter.
+  std::size_t items(std::size_t pos, bool explicitVr, int depth) {
+    if (depth > 16) fail("sequences nested deeper than 16");
+    while (true) {
+      need(pos, 8);
+      const std::uint32_t group = u16(pos), elem = u16(pos + 2), length = u32(pos + 4);
+      pos += 8;
+      if (group == 0xfffe && elem == 0xe0dd) return pos;  // sequence delimiter
+      if (group != 0xfffe || elem != 0xe000) fail("malformed sequence at byte " + std::to_string(pos - 8));
+      if (length != 0xffffffffu) {
+        need(pos, length);
+        pos += length;
+        continue;
+      }
+      std::uint32_t last = 0;
+      while (true) {  // an item of undefined length: elements up to the item delimiter
+        need(pos, 8);
+        if (u16(pos) == 0xfffe && u16(pos + 2) == 0xe00d) {
+          pos += 8;
+          break;
+        }
+        pos = element(pos, explicitVr, depth, last);
+      }
+    }
+  }
+
+  std::string file_;
+  std::string b_;
+};
+
+/// True when the file is DICOM: the "DICM" marker after its 128-byte preamble (files without it, such as
+/// old ACR-NEMA files, are not read). Then checks its structure (DicomStructure).
+bool isDicomFile(const std::string& file) {
+  const std::uint64_t size = fileSizeOf(file);
   std::ifstream in(file, std::ios::binary);
   char magic[132] = {};
   in.read(magic, sizeof(magic));
-  return in.gcount() == 132 && std::memcmp(magic + 128, "DICM", 4) == 0;
+  if (in.gcount() != 132 || std::memcmp(magic + 128, "DICM", 4) != 0) return false;
+  if (size > (std::uint64_t(1) << 31)) throw Error(file + ": DICOM file larger than 2 GiB");
+  std::string bytes(static_cast<std::size_t>(size), '\0');
+  in.seekg(0);
+  in.read(bytes.data(), static_cast<std::streamsize>(size));
+  if (static_cast<std::uint64_t>(in.gcount()) != size) throw Error(file + ": read error");
+  DicomStructure(file, std::move(bytes)).check();
+  return true;
 }
 
 /// Reads the header of `file` (up to the pixel data). Returns false when it is not DICOM, or DICOM without an
 /// image; throws when it looks like DICOM but cannot be read or its image fields are unusable.
 bool readSliceHeader(const std::string& file, Slice& slice) {
-  const bool preamble = hasDicmPreamble(file);
+  if (!isDicomFile(file)) return false;
   gdcm::Reader reader;
   reader.SetFileName(file.c_str());
-  if (!reader.ReadUpToTag(kPixelData)) {
-    if (preamble) throw Error(file + ": unreadable DICOM file (GDCM cannot parse it)");
-    return false;
-  }
+  if (!reader.ReadUpToTag(kPixelData)) throw Error(file + ": unreadable DICOM file (GDCM cannot parse it)");
   const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
   if (!ds.FindDataElement(kRows) || !ds.FindDataElement(kColumns)) return false;  // no image
   gdcm::StringFilter filter;
@@ -218,11 +364,13 @@ Vec3 sortAndStep(const std::string& path, std::vector<Slice>& slices, const Vec3
   const double median = sorted[sorted.size() / 2];
   const Vec3 step = (slices.back().position - slices.front().position) / double(slices.size() - 1);
   for (std::size_t n = 1; n < slices.size(); ++n) {
-    const Vec3 d = slices[n].position - slices[n - 1].position;
     if (steps[n - 1] <= 1e-6 * std::max(1.0, std::abs(median))) {
       throw Error(path + ": " + baseName(slices[n - 1].file) + " and " + baseName(slices[n].file) +
                   " lie at the same position (several images per position are not supported)");
     }
+  }
+  for (std::size_t n = 1; n < slices.size(); ++n) {
+    const Vec3 d = slices[n].position - slices[n - 1].position;
     if ((d - step).norm() > kStepTolerance * median) {
       std::ostringstream m;
       m << path << ": irregular slice spacing: " << baseName(slices[n - 1].file) << " to "
