@@ -279,9 +279,9 @@ int main(int argc, char** argv) {
   Options opt;
   CLI::App app{
       "extract: turn a volume into a corner-patch model (.cip).\n"
-      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz, .vdb, or raw with --dims/--type) or an analytic "
-      "field\n"
-      "name (sphere, torus, gyroid, marschner-lobb, plane) sampled over [-1,1]^3.\n\n"
+      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz, .vdb, a DICOM folder or .dcm, or raw with\n"
+      "--dims/--type) or an analytic field name (sphere, torus, gyroid, marschner-lobb, plane) sampled\n"
+      "over [-1,1]^3.\n\n"
       "Examples:\n"
       "  extract data/blobs.nhdr --iso 0.5 -o blobs.cip\n"
       "  extract sphere --resolution 64 --normals exact -o sphere.cip\n"

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <numeric>
 #include <random>
+#include <sstream>
 
 #include "cip/readers/volume_reader.h"
 #include "support/dicom_files.h"
@@ -224,6 +225,65 @@ TEST(DicomReader, HostileSeries) {
     test::writeAll(dir.file("cut.dcm"), bytes.substr(0, bytes.size() - 10));
     expectError([&] { readDicom(dir.path()); }, {"cut.dcm"});
   }
+}
+
+/// pydicom (Debian's python3-pydicom), an independent reader: for each file of the folder, sorted along the
+/// normal, its position, then the world position of every pixel by the standard's formula and its rescaled
+/// value, one "x y z value" line per pixel, row by row.
+const char* kPydicomScript = R"(
+import glob, sys
+import numpy as np
+import pydicom
+slices = [pydicom.dcmread(f) for f in glob.glob(sys.argv[1] + "/*.dcm")]
+r = np.array([float(v) for v in slices[0].ImageOrientationPatient[:3]])
+c = np.array([float(v) for v in slices[0].ImageOrientationPatient[3:]])
+n = np.cross(r, c)
+slices.sort(key=lambda s: float(np.dot(n, [float(v) for v in s.ImagePositionPatient])))
+for s in slices:
+    p = np.array([float(v) for v in s.ImagePositionPatient])
+    dj, di = (float(v) for v in s.PixelSpacing)
+    values = s.pixel_array * float(s.RescaleSlope) + float(s.RescaleIntercept)
+    for j in range(s.Rows):
+        for i in range(s.Columns):
+            x = p + i * di * r + j * dj * c
+            print("%.17g %.17g %.17g %.17g" % (x[0], x[1], x[2], values[j, i]))
+)";
+
+TEST(DicomReader, AgreesWithPydicom) {
+  if (std::system("/usr/bin/python3 -c 'import pydicom' >/dev/null 2>&1") != 0) {
+    GTEST_SKIP() << "python3-pydicom is not installed";
+  }
+  test::ScratchDir dir;
+  std::filesystem::create_directory(dir.file("series"));
+  Series s;
+  s.orientation = obliqueOrientation(-0.4, 0.9, 0.2);
+  s.origin = {5.5, -300.125, 12};
+  s.step = Vec3(0.1, -0.2, 3.0);
+  s.slope = 2.5;
+  s.intercept = 7;
+  for (int k = 0; k < s.count; ++k)
+    DicomWriter::write(dir.file("series/s" + std::to_string((k * 5) % s.count) + ".dcm"), s.slice(k));
+  test::writeAll(dir.file("read.py"), kPydicomScript);
+  const std::string out = dir.file("pydicom.txt");
+  ASSERT_EQ(std::system(
+                ("/usr/bin/python3 " + dir.file("read.py") + " " + dir.file("series") + " > " + out).c_str()),
+            0);
+  std::istringstream lines(test::readAll(out));
+  const DenseGrid g = readDicom(dir.file("series"));
+  int seen = 0;
+  for (int k = 0; k < s.count; ++k)
+    for (int j = 0; j < s.rows; ++j)
+      for (int i = 0; i < s.columns; ++i) {
+        Vec3 x;
+        double value = 0;
+        ASSERT_TRUE(lines >> x[0] >> x[1] >> x[2] >> value);
+        const Vec3 world =
+            g.geometry.origin + g.geometry.direction * g.geometry.spacing.cwiseProduct(Vec3(i, j, k));
+        EXPECT_LT((world - x).norm(), 1e-6) << i << " " << j << " " << k;
+        EXPECT_NEAR(g.at(i, j, k), value, 1e-9);
+        ++seen;
+      }
+  EXPECT_EQ(seen, s.columns * s.rows * s.count);
 }
 
 /// Runs the reader on `path`; returns "" on success, else the error, which must start with the path.
