@@ -11,8 +11,10 @@
 /// Values = stored value * RescaleSlope + RescaleIntercept, per slice. Pixel data of any sample type GDCM
 /// decodes to 8-, 16- or 32-bit integers or floats, compressed or not, one sample per pixel.
 ///
-/// Files of a folder that are not DICOM (no DICM preamble, and GDCM cannot parse them) and DICOM files
-/// without an image (DICOMDIR, reports) are skipped; a file with the DICM preamble that cannot be read is an
+/// Files of a folder without the DICM marker after the 128-byte preamble and DICOM files without an image
+/// (DICOMDIR, reports) are skipped. A file with the marker has its structure checked before GDCM parses it
+/// (elements within the file, tags ascending, VRs as in the dictionary; little endian transfer syntaxes
+/// only), because GDCM aborts on some malformed files; one that fails, or that GDCM cannot parse, is an
 /// error. Other errors, all "<path>: ...": no DICOM image, slices of mixed sizes or orientations, two slices
 /// at one position, slice steps that differ by more than 5% of their median (a missing slice), multi-frame
 /// files, missing or malformed position/orientation/spacing, colour images, sizes over `maxBytes`.
