@@ -1,4 +1,5 @@
-// libFuzzer target: the DICOM reader on one slice file (its structure check, then GDCM's parser and decoders).
+// libFuzzer target: the DICOM reader on one slice file (its structure check, then GDCM's parser and
+// decoders).
 #include "cip/core/error.h"
 #include "cip/readers/dicom_reader.h"
 #include "fuzz_input.h"
