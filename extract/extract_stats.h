@@ -20,6 +20,7 @@ struct ExtractStats {
   std::optional<FittingStats> fitting;              ///< the fitted construction's fallback (method fitted)
   std::optional<ModelDisplacement> storage;         ///< --check-storage: the model as stored against as built
   int modelVersion = 2;                             ///< the format the model file was written in
+  WorldTransform world;  ///< grid frame -> the world the meshes and "world" stats are given in
 };
 
 /// Writes the stats and the model's counts (the file format version, non-empty cells, isovertices, corners,

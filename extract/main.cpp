@@ -12,6 +12,7 @@
 
 #include "cip/core/error.h"
 #include "cip/core/progress_bar.h"
+#include "cip/core/world_transform.h"
 #include "cip/measure/model_displacement.h"
 #include "cip/mesh/marching_cubes.h"
 #include "cip/mesh/patch_mesh.h"
@@ -33,6 +34,7 @@ double secondsSince(Clock::time_point t) {
 struct Options {
   std::string input, output, mcMesh, patchMesh, statsJson;
   std::string normals = "gradient", central = "zero", method = "fitted", reconstruction = "auto";
+  std::string space;  ///< --space: world frame of the outputs (empty = the volume's own)
   std::optional<double> iso;
   int resolution = 64, subdiv = 4, threads = 0, modelVersion = 2;
   bool quiet = false, skipNonFinite = false, checkStorage = false;
@@ -135,14 +137,21 @@ double isovalue(const Options& opt, const Input& in) {
   return iso;
 }
 
-/// The marching-cubes and patch meshes the command line asks for.
+/// The world frame --space asks for (Unspecified = the volume's own).
+cip::WorldSpace outputSpace(const Options& opt) {
+  return opt.space.empty() ? cip::WorldSpace::Unspecified : cip::parseWorldSpace(opt.space);
+}
+
+/// The marching-cubes and patch meshes the command line asks for, in world coordinates.
 void writeMeshes(const Options& opt, const cip::Model& model, cip::ExtractStats& stats) {
+  const cip::WorldTransform world = cip::WorldTransform::of(model.geometry, outputSpace(opt));
   if (!opt.mcMesh.empty()) {
     auto t = Clock::now();
     cip::MarchingCubesOptions mo;
     mo.threads = opt.threads;
     mo.recordCells = false;
     cip::TriangleMesh mesh = cip::marchingCubes(model, mo);
+    cip::transformMesh(mesh, world);
     stats.bytesWritten[opt.mcMesh] = cip::writeMesh(mesh, opt.mcMesh);
     stats.seconds["marching_cubes"] = secondsSince(t);
   }
@@ -151,6 +160,7 @@ void writeMeshes(const Options& opt, const cip::Model& model, cip::ExtractStats&
     cip::PatchMeshOptions po;
     po.threads = opt.threads;
     cip::TriangleMesh mesh = cip::patchMesh(model, opt.subdiv, po);
+    cip::transformMesh(mesh, world);
     stats.bytesWritten[opt.patchMesh] = cip::writeMesh(mesh, opt.patchMesh);
     stats.seconds["patch_mesh"] = secondsSince(t);
   }
@@ -234,6 +244,8 @@ int run(const Options& opt) {
   if (!opt.mcMesh.empty()) cip::meshFormatOf(opt.mcMesh);
   if (!opt.patchMesh.empty()) cip::meshFormatOf(opt.patchMesh);
   Input in = readInput(opt, options, stats);
+  // A --space the volume cannot be converted to fails here, before the build.
+  stats.world = cip::WorldTransform::of(in.volume.geometry, outputSpace(opt));
   stats.dims = in.volume.geometry.dims;
   stats.seconds["read"] = secondsSince(t0);
 
@@ -341,6 +353,12 @@ int main(int argc, char** argv) {
       "--patch-mesh", opt.patchMesh,
       "also write a crack-free mesh of the corner-patch surface (format by extension as for --mc-mesh), "
       "e.g. --patch-mesh p.glb");
+  app.add_option(
+         "--space", opt.space,
+         "world frame of the meshes and stats: ras, las or lps (default: the volume's own, e.g. RAS for "
+         "NIfTI, LPS for DICOM and MetaImage); the model keeps the volume's, e.g. --space lps")
+      ->transform(CLI::detail::to_lower)
+      ->check(CLI::IsMember({"ras", "las", "lps"}));
   app.add_option("--subdiv", opt.subdiv, "patch mesh: samples per cell edge (default 4), e.g. --subdiv 8")
       ->check(CLI::Range(1, 64));
   app.add_option("--stats-json", opt.statsJson,

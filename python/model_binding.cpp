@@ -136,8 +136,11 @@ py::tuple evaluate(const Model& model, const py::array& points) {
   double* g = gradients.mutable_data();
   py::gil_scoped_release release;
   const GridGeometry& geo = model.geometry;
+  const WorldTransform world = WorldTransform::of(geo);
+  // d/dworld = J^T d/dindex with index = worldToIndex(world.toFrame(point)).
+  const Mat3 jt = world.normalMatrix * geo.spacing.cwiseInverse().asDiagonal();
   tbb::parallel_for(py::ssize_t{0}, n, [&](py::ssize_t i) {
-    const Vec3 index = geo.worldToIndex(Vec3(in[3 * i], in[3 * i + 1], in[3 * i + 2]));
+    const Vec3 index = geo.worldToIndex(world.toFrame(Vec3(in[3 * i], in[3 * i + 1], in[3 * i + 2])));
     const std::int64_t c = cellAt(model, index);
     if (c < 0) {
       v[i] = g[3 * i] = g[3 * i + 1] = g[3 * i + 2] = std::numeric_limits<double>::quiet_NaN();
@@ -146,7 +149,8 @@ py::tuple evaluate(const Model& model, const py::array& points) {
     const auto cell = static_cast<std::size_t>(c);
     const PatchDerivatives d = model.patch(cell).derivatives(index - model.cellOrigin(cell));
     v[i] = d.value;
-    for (int a = 0; a < 3; ++a) g[3 * i + a] = d.gradient[a] / geo.spacing[a];
+    const Vec3 gw = jt * d.gradient;
+    for (int a = 0; a < 3; ++a) g[3 * i + a] = gw[a];
   });
   py::gil_scoped_acquire acquire;
   return py::make_tuple(values, gradients);
@@ -155,18 +159,30 @@ py::tuple evaluate(const Model& model, const py::array& points) {
 /// ((xmin, ymin, zmin), (xmax, ymax, zmax)) of the non-empty cells in world coordinates, or None.
 py::object bounds(const Model& model) {
   if (model.cells.empty()) return py::none();
-  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
-  for (std::size_t c = 0; c < model.cells.size(); ++c) {
-    lo = lo.cwiseMin(model.cellOrigin(c));
-    hi = hi.cwiseMax(model.cellOrigin(c) + Vec3::Ones());
-  }
-  lo = model.geometry.indexToWorld(lo);
-  hi = model.geometry.indexToWorld(hi);
+  const auto [lo, hi] = worldBounds(model, WorldTransform::of(model.geometry));
   return py::make_tuple(py::make_tuple(lo[0], lo[1], lo[2]), py::make_tuple(hi[0], hi[1], hi[2]));
 }
 
 py::tuple vecTuple(const Vec3& v) {
   return py::make_tuple(v[0], v[1], v[2]);
+}
+
+/// The world frame a `space=` keyword asks for: None = the model's own.
+WorldTransform worldOf(const Model& model, const py::object& space) {
+  return WorldTransform::of(
+      model.geometry, space.is_none() ? WorldSpace::Unspecified : parseWorldSpace(space.cast<std::string>()));
+}
+
+/// The 4x4 index-to-world matrix of the model's volume (numpy, float64).
+py::array_t<double> affine(const Model& model) {
+  const WorldTransform w = WorldTransform::of(model.geometry);
+  const Mat3 a = w.linear * model.geometry.spacing.asDiagonal();
+  const Vec3 b = w.point(model.geometry.origin);
+  py::array_t<double> out({py::ssize_t{4}, py::ssize_t{4}});
+  auto o = out.mutable_unchecked<2>();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) o(r, c) = r < 3 ? (c < 3 ? a(r, c) : b[r]) : (c == 3 ? 1.0 : 0.0);
+  return out;
 }
 
 }  // namespace
@@ -191,13 +207,20 @@ void bindModel(py::module_& m) {
           "grid points per axis of the source volume")
       .def_property_readonly("spacing", [](const Model& x) { return vecTuple(x.geometry.spacing); })
       .def_property_readonly("origin", [](const Model& x) { return vecTuple(x.geometry.origin); })
+      .def_property_readonly(
+          "affine", &affine,
+          "4x4 index-to-world matrix of the volume (rotation, flips, shear, spacing, origin)")
+      .def_property_readonly(
+          "world_space", [](const Model& x) { return std::string(toString(x.geometry.space)); },
+          "anatomical frame of the world coordinates: 'RAS', 'LAS', 'LPS' or 'unspecified'")
       .def_property_readonly("source", [](const Model& x) { return x.source; })
       .def(
           "save", [](const Model& x, const std::string& path) { return writeModel(x, path); },
           py::arg("path"), "writes the .cip file atomically; returns the bytes written")
       .def(
           "mc_mesh",
-          [](const Model& x, int threads) {
+          [](const Model& x, int threads, const py::object& space) {
+            const WorldTransform world = worldOf(x, space);
             TriangleMesh mesh;
             {
               py::gil_scoped_release release;
@@ -205,24 +228,30 @@ void bindModel(py::module_& m) {
               o.threads = threads;
               o.recordCells = false;
               mesh = marchingCubes(x, o);
+              transformMesh(mesh, world);
             }
             return meshArrays(mesh);
           },
-          py::arg("threads") = 0, "marching-cubes mesh of the model's cells: (verts, faces, normals)")
+          py::arg("threads") = 0, py::arg("space") = py::none(),
+          "marching-cubes mesh of the model's cells in world coordinates (space: 'ras', 'las', 'lps' or "
+          "None = the model's own): (verts, faces, normals)")
       .def(
           "patch_mesh",
-          [](const Model& x, int subdiv, int threads) {
+          [](const Model& x, int subdiv, int threads, const py::object& space) {
+            const WorldTransform world = worldOf(x, space);
             TriangleMesh mesh;
             {
               py::gil_scoped_release release;
               PatchMeshOptions o;
               o.threads = threads;
               mesh = patchMesh(x, subdiv, o);
+              transformMesh(mesh, world);
             }
             return meshArrays(mesh);
           },
-          py::arg("subdiv") = 4, py::arg("threads") = 0,
-          "crack-free mesh of the patch surface, subdiv samples per cell edge: (verts, faces, normals)")
+          py::arg("subdiv") = 4, py::arg("threads") = 0, py::arg("space") = py::none(),
+          "crack-free mesh of the patch surface in world coordinates, subdiv samples per cell edge (space "
+          "as for mc_mesh): (verts, faces, normals)")
       .def("evaluate", &evaluate, py::arg("points"),
            "patch values and world gradients at world points (N, 3): (values (N,), gradients (N, 3))")
       .def("__repr__", [](const Model& x) {

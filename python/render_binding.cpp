@@ -32,7 +32,7 @@ py::array_t<T> channel(const std::vector<T>& data, int width, int height, int st
 py::dict render(const std::shared_ptr<Model>& model, const py::object& eye, const py::object& look,
                 const py::object& up, double fov, const std::pair<int, int>& size, const std::string& shading,
                 int spp, bool shadows, bool ortho, const py::object& curvatureRange, int threads,
-                const py::object& progress) {
+                const py::object& progress, const py::object& space) {
   const auto [width, height] = size;
   if (width < 1 || height < 1 || width > 32768 || height > 32768)
     throw Error("size must be (width, height) with sizes from 1 to 32768");
@@ -61,6 +61,7 @@ py::dict render(const std::shared_ptr<Model>& model, const py::object& eye, cons
         sceneOptions.curvature =
             options.shading.mode == raycast::ShadingMode::Curvature;  // Hessian only then
         sceneOptions.threads = threads;
+        if (!space.is_none()) sceneOptions.space = parseWorldSpace(space.cast<std::string>());
         const raycast::PatchScene scene(*model, sceneOptions);
         options.progress = report;
         image = raycast::render(scene, raycast::makeCamera(camera, scene.bounds(), width, height), options);
@@ -80,7 +81,7 @@ py::dict render(const std::shared_ptr<Model>& model, const py::object& eye, cons
 void bindRender(py::module_& m) {
   m.def("_render", &render, py::arg("model"), py::arg("eye"), py::arg("look"), py::arg("up"), py::arg("fov"),
         py::arg("size"), py::arg("shading"), py::arg("spp"), py::arg("shadows"), py::arg("ortho"),
-        py::arg("curvature_range"), py::arg("threads"), py::arg("progress"));
+        py::arg("curvature_range"), py::arg("threads"), py::arg("progress"), py::arg("space") = py::none());
 }
 
 }  // namespace cip::python

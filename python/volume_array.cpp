@@ -97,4 +97,32 @@ DenseGrid VolumeArray::toGrid(const std::string& description) const {
   return grid;
 }
 
+StridedSamples VolumeArray::samples() const {
+  StridedSamples s;
+  s.data = data_;
+  for (int a = 0; a < 3; ++a) s.shape[a] = geometry_.dims[a];
+  s.strides = strides_;
+  const bool isSigned = kind_ == 'i';
+  switch (kind_ == 'f' ? itemSize_ + 100 : itemSize_) {
+    case 1:
+      s.type = kind_ == 'b' ? ElementType::Bool : isSigned ? ElementType::Int8 : ElementType::UInt8;
+      break;
+    case 2:
+      s.type = isSigned ? ElementType::Int16 : ElementType::UInt16;
+      break;
+    case 4:
+      s.type = isSigned ? ElementType::Int32 : ElementType::UInt32;
+      break;
+    case 8:
+      s.type = isSigned ? ElementType::Int64 : ElementType::UInt64;
+      break;
+    case 104:
+      s.type = ElementType::Float32;
+      break;
+    default:
+      s.type = ElementType::Float64;
+  }
+  return s;
+}
+
 }  // namespace cip::python

@@ -12,6 +12,7 @@
 #include <string>
 
 #include "cip/volume/dense_grid.h"
+#include "cip/volume/strided_samples.h"
 
 namespace cip::python {
 
@@ -25,6 +26,8 @@ class VolumeArray {
   /// The converted grid (in parallel over the array's slices).
   DenseGrid toGrid(const std::string& description) const;
   const GridGeometry& geometry() const { return geometry_; }
+  /// The array's own buffer as a strided view (no copy; valid while this object lives).
+  StridedSamples samples() const;
 
  private:
   pybind11::array array_;

@@ -77,6 +77,8 @@ int runApp(const AppOptions& opt) {
   double readSeconds = 0;
   if (!opt.mesh.empty()) {
     if (!opt.model.empty()) throw Error("give either a model file or --mesh, not both");
+    if (!opt.space.empty())
+      throw Error("--space applies to models; a mesh is rendered in the coordinates it is written in");
     input = opt.mesh;
     mesh = readPly(opt.mesh);
     readSeconds = secondsSince(t0);
@@ -89,6 +91,7 @@ int runApp(const AppOptions& opt) {
     PatchSceneOptions sceneOptions;
     sceneOptions.curvature = render.shading.mode == ShadingMode::Curvature;
     sceneOptions.threads = opt.threads;
+    if (!opt.space.empty()) sceneOptions.space = parseWorldSpace(opt.space);
     scene = std::make_unique<PatchScene>(model, sceneOptions);
   }
   const double buildSeconds = secondsSince(t0);
@@ -141,6 +144,12 @@ int runApp(const AppOptions& opt) {
                    {"up", {camera.up().x(), camera.up().y(), camera.up().z()}},
                    {"fov", camera.fovDegrees()},
                    {"orthographic", camera.orthographic()}};
+    const Box box = scene->bounds();
+    const auto* patches = dynamic_cast<const PatchScene*>(scene.get());
+    j["world"] = {
+        {"space", patches ? toString(patches->world().space) : "unspecified"},
+        {"bounds",
+         {{"lo", {box.lo.x(), box.lo.y(), box.lo.z()}}, {"hi", {box.hi.x(), box.hi.y(), box.hi.z()}}}}};
     if (render.shading.mode == ShadingMode::Curvature)
       j["curvature_range"] = {stats.curvatureLo, stats.curvatureHi};
     const std::string text = j.dump(2) + "\n";

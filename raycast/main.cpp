@@ -62,6 +62,11 @@ int main(int argc, char** argv) {
       ->delimiter(',')
       ->expected(2)
       ->allow_extra_args(false);
+  app.add_option("--space", opt.space,
+                 "world frame of --eye/--look/--up and the image's positions and normals: ras, las or lps "
+                 "(default: the model's own, e.g. RAS for NIfTI, LPS for DICOM), e.g. --space lps")
+      ->transform(CLI::detail::to_lower)
+      ->check(CLI::IsMember({"ras", "las", "lps"}));
   app.add_option("--threads", opt.threads,
                  "worker threads, 0 = all (default); the image does not depend on it, "
                  "e.g. --threads 4")

@@ -3,6 +3,7 @@
 #include <tbb/task_arena.h>
 
 #include <cmath>
+#include <tuple>
 
 #include "cip/patch/ray_patch.h"
 
@@ -14,7 +15,8 @@ namespace {
 /// single-precision traversal never culls a cell that the double-precision clip would accept.
 constexpr double kBoundsPad = 1e-3;
 
-/// Extends Embree's context with the double-precision ray and the closest hit so far. Embree passes the
+/// Extends Embree's context with the double-precision ray (in the model's grid frame) and the closest hit so
+/// far. Embree passes the
 /// context pointer through to the callbacks unchanged.
 struct PatchRayContext {
   RTCIntersectContext embree;  // must be first
@@ -54,7 +56,7 @@ void patchBounds(const RTCBoundsFunctionArguments* args) {
 /// beyond that hit, so skipping it changes no answer.
 std::optional<Root> cellRoot(const PatchRayContext& ctx, std::uint32_t cell) {
   const PatchScene& s = *ctx.scene;
-  const Vec3 origin = s.worldToLocal(ctx.ray.origin, cell);
+  const Vec3 origin = s.frameToLocal(ctx.ray.origin, cell);
   const Vec3 direction =
       ctx.ray.direction.cwiseQuotient(s.model().geometry.spacing);  // same t as the world ray
   double t0 = 0, t1 = 0;
@@ -108,21 +110,17 @@ double meanCurvature(const Vec3& g, const Mat3& h) {
 }
 
 PatchScene::PatchScene(const Model& model, const PatchSceneOptions& options)
-    : model_(model), curvature_(options.curvature), device_(options.threads) {
+    : model_(model),
+      world_(WorldTransform::of(model.geometry, options.space)),
+      curvature_(options.curvature),
+      device_(options.threads) {
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   arena.execute([&] { build(); });
 }
 
 void PatchScene::build() {
   const Model& model = model_;
-  bounds_.lo = Vec3::Constant(std::numeric_limits<double>::infinity());
-  bounds_.hi = -bounds_.lo;
-  for (std::size_t c = 0; c < model.cells.size(); ++c) {
-    const Vec3 cell = model.cellOrigin(c);
-    bounds_.lo = bounds_.lo.cwiseMin(model.geometry.indexToWorld(cell));
-    bounds_.hi = bounds_.hi.cwiseMax(model.geometry.indexToWorld(cell + Vec3::Ones()));
-  }
-  if (model.cells.empty()) bounds_.lo = bounds_.hi = model.geometry.origin;
+  std::tie(bounds_.lo, bounds_.hi) = worldBounds(model, world_);
 
   scene_ = rtcNewScene(device_.get());
   rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
@@ -147,8 +145,19 @@ PatchScene::~PatchScene() {
   if (scene_) rtcReleaseScene(scene_);
 }
 
+Vec3 PatchScene::frameToLocal(const Vec3& frame, std::uint32_t cell) const {
+  return model_.geometry.worldToIndex(frame) - model_.cellOrigin(cell);
+}
+
 Vec3 PatchScene::worldToLocal(const Vec3& world, std::uint32_t cell) const {
-  return model_.geometry.worldToIndex(world) - model_.cellOrigin(cell);
+  return frameToLocal(world_.toFrame(world), cell);
+}
+
+Ray PatchScene::toFrame(const Ray& ray) const {
+  Ray r = ray;
+  r.origin = world_.toFrame(ray.origin);
+  r.direction = world_.directionToFrame(ray.direction);
+  return r;
 }
 
 SurfaceHit PatchScene::surfaceAt(const Ray& ray, double t, std::uint32_t cell) const {
@@ -158,20 +167,22 @@ SurfaceHit PatchScene::surfaceAt(const Ray& ray, double t, std::uint32_t cell) c
   hit.id = cell;
   hit.hasCellIndex = true;
   hit.cellIndex = model_.cells[cell].index;
-  const Vec3 local =
-      worldToLocal(ray.origin, cell) + t * ray.direction.cwiseQuotient(model_.geometry.spacing);
+  const Vec3 local = worldToLocal(ray.origin, cell) +
+                     t * world_.directionToFrame(ray.direction).cwiseQuotient(model_.geometry.spacing);
   const CornerPatch p = patch(cell);
   const PatchDerivatives d = curvature_ ? p.derivatives(local) : p.valueAndGradient(local);
-  // local = (world - origin) / spacing - cell: d/dworld = diag(1 / spacing) d/dlocal.
-  const Vec3 inv = model_.geometry.spacing.cwiseInverse();
-  const Vec3 g = d.gradient.cwiseProduct(inv);
+  // local = (frame - origin) / spacing - cell and frame = world_.toFrame(world):
+  // d/dworld = J^T d/dlocal with J = diag(1 / spacing) * world_.inverse.
+  const Mat3 jt = world_.normalMatrix * model_.geometry.spacing.cwiseInverse().asDiagonal();
+  const Vec3 g = jt * d.gradient;
   const double gn = g.norm();
   hit.normal = gn > 0 ? Vec3(g / gn) : Vec3(-ray.direction);
-  if (curvature_) hit.meanCurvature = meanCurvature(g, inv.asDiagonal() * d.hessian * inv.asDiagonal());
+  if (curvature_) hit.meanCurvature = meanCurvature(g, jt * d.hessian * jt.transpose());
   return hit;
 }
 
-bool PatchScene::intersect(const Ray& ray, double tNear, double tFar, SurfaceHit& hit) const {
+bool PatchScene::intersect(const Ray& worldRay, double tNear, double tFar, SurfaceHit& hit) const {
+  const Ray ray = toFrame(worldRay);
   PatchRayContext ctx(this, ray, tNear, tFar);
   RTCRayHit rh;
   setEmbreeRay(rh.ray, ray, tNear, tFar);
@@ -180,11 +191,12 @@ bool PatchScene::intersect(const Ray& ray, double tNear, double tFar, SurfaceHit
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(scene_, &ctx.embree, &rh);
   if (!ctx.found) return false;
-  hit = surfaceAt(ray, ctx.bestT, ctx.bestCell);
+  hit = surfaceAt(worldRay, ctx.bestT, ctx.bestCell);
   return true;
 }
 
-bool PatchScene::occluded(const Ray& ray, double tNear, double tFar) const {
+bool PatchScene::occluded(const Ray& worldRay, double tNear, double tFar) const {
+  const Ray ray = toFrame(worldRay);
   PatchRayContext ctx(this, ray, tNear, tFar);
   RTCRay r;
   setEmbreeRay(r, ray, tNear, tFar);

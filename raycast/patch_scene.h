@@ -1,7 +1,8 @@
 /// @file patch_scene.h
 /// @brief A corner-patch model as an Embree user geometry: one primitive per non-empty cell, exact ray-patch
 /// intersection in double precision (cip/patch/ray_patch.h), normals and curvature from the patch's exact
-/// derivatives.
+/// derivatives. Rays come in world coordinates and are mapped into the model's axis-aligned grid frame
+/// (world_transform.h), so the patches stay exact under any rotation, flip or shear of the volume.
 #pragma once
 #include <vector>
 
@@ -17,6 +18,8 @@ struct PatchSceneOptions {
   bool curvature = true;
   /// Threads for building the scene (patches and BVH); 0 = all.
   int threads = 0;
+  /// World frame of rays and hits: the model's own (Unspecified), or RAS/LAS/LPS converted from it.
+  WorldSpace space = WorldSpace::Unspecified;
 };
 
 class PatchScene : public RenderScene {
@@ -30,7 +33,7 @@ class PatchScene : public RenderScene {
 
   bool intersect(const Ray& ray, double tNear, double tFar, SurfaceHit& hit) const override;
   bool occluded(const Ray& ray, double tNear, double tFar) const override;
-  /// World box of the non-empty cells.
+  /// World box of the non-empty cells (in the frame of PatchSceneOptions::space).
   Box bounds() const override { return bounds_; }
   std::size_t primitives() const override { return model_.cells.size(); }
 
@@ -46,11 +49,19 @@ class PatchScene : public RenderScene {
   CornerPatch patch(std::uint32_t cell) const { return model_.patch(cell); }
   /// Cell-local coordinates of a world point in cell `cell`.
   Vec3 worldToLocal(const Vec3& world, std::uint32_t cell) const;
+  /// Cell-local coordinates of a point of the model's grid frame in cell `cell`.
+  Vec3 frameToLocal(const Vec3& frame, std::uint32_t cell) const;
+  /// The map from the model's grid frame (where the BVH and the patches are) to the world of the rays.
+  const WorldTransform& world() const { return world_; }
 
  private:
   void build();  ///< patches, bounds and BVH (run inside the options' thread arena)
 
+  /// The world ray in the model's grid frame (same parameter t).
+  Ray toFrame(const Ray& ray) const;
+
   const Model& model_;
+  WorldTransform world_;
   bool curvature_ = true;
   Box bounds_;
   EmbreeDevice device_;

@@ -7,6 +7,7 @@
 #include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
@@ -783,4 +784,91 @@ TEST(Raycast, MeanCurvatureOfTheSphere) {
   render(scene, camera, options, &stats);
   EXPECT_GT(stats.curvatureHi, 0);
   EXPECT_EQ(stats.curvatureLo, -stats.curvatureHi);
+}
+
+namespace {
+
+/// A rotation by `degrees` about the unit `axis`.
+Mat3 rotation(const Vec3& axis, double degrees) {
+  return Eigen::AngleAxisd(degrees * kPi / 180, axis.normalized()).toRotationMatrix();
+}
+
+}  // namespace
+
+// The patch surface of a rotated or flipped volume is the rotated (flipped) surface of the axis-aligned one:
+// a model whose grid carries an orientation, seen by a camera moved with it, gives the same depths, and
+// normals moved with it, as the axis-aligned model seen by the original camera.
+TEST(PatchScene, OrientedGridRendersAsTheMovedAxisAlignedGrid) {
+  const Model plain = sampledModel("torus", 20);
+  Model moved = plain;
+  const Mat3 flip = Vec3(1, -1, 1).asDiagonal();
+  for (const Mat3& d : {rotation(Vec3(1, 2, 3), 37), Mat3(rotation(Vec3(-2, 1, 0.5), 110) * flip)}) {
+    moved.geometry.direction = d;
+    const PatchScene a(plain), b(moved);
+    const Vec3 o = plain.geometry.origin;
+    auto move = [&](const Vec3& p) { return Vec3(o + d * (p - o)); };
+    // The moved scene's bounds lie within the box of the moved corners of the plain scene's box, and hold
+    // every moved cell centre.
+    Vec3 lo = Vec3::Constant(1e300), hi = -lo;
+    for (int corner = 0; corner < 8; ++corner) {
+      const Vec3 q = move(Vec3(corner & 1 ? a.bounds().hi.x() : a.bounds().lo.x(),
+                               corner & 2 ? a.bounds().hi.y() : a.bounds().lo.y(),
+                               corner & 4 ? a.bounds().hi.z() : a.bounds().lo.z()));
+      lo = lo.cwiseMin(q);
+      hi = hi.cwiseMax(q);
+    }
+    EXPECT_TRUE((b.bounds().lo.array() >= lo.array() - 1e-9).all());
+    EXPECT_TRUE((b.bounds().hi.array() <= hi.array() + 1e-9).all());
+    for (std::size_t c = 0; c < plain.cells.size(); ++c) {
+      const Vec3 q = move(plain.geometry.indexToWorld(plain.cellOrigin(c) + Vec3::Constant(0.5)));
+      ASSERT_TRUE((q.array() >= b.bounds().lo.array()).all() && (q.array() <= b.bounds().hi.array()).all());
+    }
+    const Camera ca = makeCamera(CameraSettings{}, a.bounds(), 48, 40);
+    int hits = 0;
+    double maxDepth = 0, maxNormal = 0;
+    for (int y = 0; y < ca.height(); ++y)
+      for (int x = 0; x < ca.width(); ++x) {
+        const Ray r = ca.ray(x + 0.5, y + 0.5);
+        const Ray rb{move(r.origin), d * r.direction};
+        SurfaceHit ha, hb;
+        const bool hitA = a.intersect(r, 0, std::numeric_limits<double>::infinity(), ha);
+        const bool hitB = b.intersect(rb, 0, std::numeric_limits<double>::infinity(), hb);
+        ASSERT_EQ(hitA, hitB) << "pixel " << x << "," << y;
+        if (!hitA) continue;
+        ++hits;
+        maxDepth = std::max(maxDepth, std::abs(ha.t - hb.t));
+        maxNormal = std::max(maxNormal, (d * ha.normal - hb.normal).norm());
+        EXPECT_LT((move(ha.position) - hb.position).norm(), 1e-9);
+        EXPECT_NEAR(ha.meanCurvature, hb.meanCurvature, 1e-6 * (1 + std::abs(ha.meanCurvature)));
+      }
+    EXPECT_GT(hits, 200);
+    EXPECT_LT(maxDepth, 1e-9);
+    EXPECT_LT(maxNormal, 1e-9);
+  }
+}
+
+// With --space the scene converts the model's anatomical frame: RAS -> LPS negates x and y of every hit.
+TEST(PatchScene, SpaceConversionNegatesXAndYFromRasToLps) {
+  Model ras = sampledModel("sphere", 16);
+  ras.geometry.space = WorldSpace::RAS;
+  PatchSceneOptions lpsOptions;
+  lpsOptions.space = WorldSpace::LPS;
+  const PatchScene a(ras), b(ras, lpsOptions);
+  const Vec3 s(-1, -1, 1);
+  EXPECT_LT((b.bounds().lo - s.cwiseProduct(a.bounds().hi)).cwiseProduct(Vec3(1, 1, 0)).norm(), 1e-12);
+  const Camera ca = makeCamera(CameraSettings{}, a.bounds(), 24, 20);
+  int hits = 0;
+  for (int y = 0; y < ca.height(); ++y)
+    for (int x = 0; x < ca.width(); ++x) {
+      const Ray r = ca.ray(x + 0.5, y + 0.5);
+      SurfaceHit ha, hb;
+      if (!a.intersect(r, 0, 1e9, ha)) continue;
+      ASSERT_TRUE(b.intersect(Ray{s.cwiseProduct(r.origin), s.cwiseProduct(r.direction)}, 0, 1e9, hb));
+      EXPECT_NEAR(ha.t, hb.t, 1e-12);
+      EXPECT_LT((s.cwiseProduct(ha.normal) - hb.normal).norm(), 1e-12);
+      ++hits;
+    }
+  EXPECT_GT(hits, 50);
+  Model plain = sampledModel("sphere", 16);
+  EXPECT_THROW(PatchScene(plain, lpsOptions), Error);  // no anatomical frame to convert from
 }

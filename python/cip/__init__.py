@@ -33,41 +33,53 @@ def _volume(volume):
 
 
 def marching_cubes(volume, level=None, *, spacing=(1.0, 1.0, 1.0), gradient_direction="descent", step_size=1,
-                   allow_degenerate=True, method="lewiner", mask=None, threads=0):
-    """Marching cubes with scikit-image's conventions (skimage.measure.marching_cubes), on cip's own code.
+                   allow_degenerate=True, method="lewiner", mask=None, threads=0, progress=None):
+    """skimage.measure.marching_cubes on cip's own implementation: the same mesh, in the same order.
 
-    Returns (verts (V, 3) float32 (float64 with a spacing other than 1), faces (F, 3) int32, normals (V, 3) float32, values (V,) float32): vertices
-    in the array's axis order scaled by `spacing`, at linear edge crossings; normals from central-difference
-    gradients, pointing towards lower values (outwards of an object of higher values), as scikit-image's do;
-    faces wound as scikit-image winds them for `gradient_direction` ('descent': the object has the higher
-    values); values as scikit-image defines them
-    (the largest range of samples among the cells around each vertex). Normals are world normals (scikit-image's
-    are index-space gradients, which differ from them when the spacing is not 1). Any numeric dtype, C or Fortran order or a strided
-    view: the samples are read once from the array's own buffer. `level` defaults to the middle of the data's
-    range. `method` 'lewiner' and 'lorensen' give the same mesh here (ambiguous faces are resolved by cip's
-    rule); `step_size` must be 1 and `mask` None. `allow_degenerate=False` drops zero-area triangles.
+    Lewiner et al.'s case tables with their face and interior tests and interior vertices (method='lewiner',
+    the default) or Lorensen's classic table (method='lorensen'), computed as scikit-image computes them:
+    samples converted to float32 (read in place from any numeric dtype, C or Fortran order or a strided view,
+    no copy), vertices at the linear edge crossings in the array's axis order times `spacing`, normals the
+    index-space gradients pointing to lower values, values the largest range of samples among the cells around
+    each vertex, faces wound for `gradient_direction` ('descent': the object has the higher values).
+    Returns (verts (V, 3) float32, or float64 once scaled by a spacing other than 1, faces (F, 3) int32,
+    normals (V, 3) float32, values (V,) float32). `level` defaults to the middle of the data's range;
+    `step_size` cells of step_size^3 samples; `mask` a boolean array of the volume's shape (a cell is visited
+    where the mask is true at its far corner, as in scikit-image); allow_degenerate=False merges the vertices
+    of zero-area triangles and drops those triangles. NaN or infinite samples raise cip.Error. Without a mask,
+    slabs of cells are walked on `threads` threads (0 = all) and joined into exactly the serial walk's result;
+    the work runs without the GIL, reports progress through `progress(fraction)` and stops on Ctrl-C.
     """
     if method not in ("lewiner", "lorensen"):
-        raise ValueError("method should be one of 'lewiner' or 'lorensen'")
+        raise ValueError("method should be one of 'lewiner' or 'lorensen'.")
     if gradient_direction not in ("descent", "ascent"):
         raise ValueError("Incorrect input %s in `gradient_direction`, see docstring." % (gradient_direction,))
-    if int(step_size) != 1:
-        raise NotImplementedError("cip.marching_cubes supports step_size=1 only")
-    if mask is not None:
-        raise NotImplementedError("cip.marching_cubes does not support mask")
     if len(spacing) != 3:
         raise ValueError("`spacing` must consist of three floats.")
-    verts, faces, normals, values = _cip._marching_cubes(_volume(volume), level, tuple(spacing), threads)
+    step_size = int(step_size)
+    if step_size < 1:
+        raise ValueError("step_size must be at least one.")
+    volume = np.asarray(volume)
+    if volume.dtype.kind == "f" and volume.dtype.itemsize > 8:
+        volume = volume.astype(np.float32)  # long double: one rounding to float32, as scikit-image's
+    volume = _volume(volume)
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != volume.shape:
+            raise ValueError("volume and mask must have the same shape.")
+        if mask.dtype != np.bool_:
+            mask = mask.astype(np.bool_)
+    verts, faces, normals, values = _cip._marching_cubes(volume, level, step_size, method,
+                                                         gradient_direction == "descent", mask, int(threads),
+                                                         progress)
     if not len(verts):
         raise RuntimeError("No surface found at the given iso value.")
-    if np.array_equal(spacing, (1, 1, 1)):
-        verts = verts.astype(np.float32)  # scikit-image's types: float32, or float64 once scaled by spacing
-    if gradient_direction == "ascent":
-        faces = np.ascontiguousarray(faces[:, ::-1])
+    if not np.array_equal(spacing, (1, 1, 1)):
+        verts = verts * np.r_[spacing]  # float64, as scikit-image
     if not allow_degenerate:
-        v = verts.astype(np.float64)
-        area2 = np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
-        faces = faces[area2 > 0]
+        verts, faces, normals, values = _cip._remove_degenerate_faces(verts.astype(np.float32), faces, normals,
+                                                                      values)
+        faces = faces.astype(np.int_)  # scikit-image renumbers them with a cumsum: the default integer
     return verts, faces, normals, values
 
 
@@ -97,16 +109,18 @@ def extract(volume_or_path, level=None, *, spacing=None, origin=None, method="fi
 
 
 def render(model, eye=None, look=None, up=None, fov=35.0, size=(800, 600), *, shading="phong", spp=1,
-           shadows=False, ortho=False, curvature_range=None, threads=0, progress=None):
+           shadows=False, ortho=False, curvature_range=None, threads=0, progress=None, space=None):
     """Renders a model as the `raycast` command does; returns its EXR channels as a dict of H x W arrays.
 
     Keys: 'R', 'G', 'B', 'A' (linear, premultiplied), 'Z' (distance along the pixel-centre ray, inf where it
     misses), 'N.x', 'N.y', 'N.z' (world normal), all float32, and 'id' (uint32 cell index, 0xFFFFFFFF where
     it misses). Unset eye, look and up frame the model as the command does; shading is 'phong', 'cells',
     'normal', 'depth', 'curvature' or 'isophotes'. The same arguments give the same image as the command.
+    Camera and normals are in the model's world (`model.affine`); space='ras', 'las' or 'lps' converts it,
+    as `raycast --space` does.
     """
     if not isinstance(model, Model):
         raise TypeError("render needs a cip.Model, got %s" % type(model).__name__)
     width, height = size
     return _cip._render(model, eye, look, up, float(fov), (int(width), int(height)), shading, int(spp),
-                        bool(shadows), bool(ortho), curvature_range, int(threads), progress)
+                        bool(shadows), bool(ortho), curvature_range, int(threads), progress, space)

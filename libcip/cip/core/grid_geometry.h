@@ -12,6 +12,7 @@
 ///    `TransformMatrix`, DICOM orientation). Applied where coordinates leave cip: meshes, renders, bounds.
 ///  - cell-local coordinates: cell (i,j,k) is the unit cube [0,1]^3 at index offset (i,j,k).
 #pragma once
+#include <Eigen/LU>  // inverse() and determinant() of the direction
 #include <array>
 #include <cstdint>
 

@@ -105,4 +105,16 @@ void validateMesh(const TriangleMesh& mesh, const std::string& name) {
   }
 }
 
+void transformMesh(TriangleMesh& mesh, const WorldTransform& transform) {
+  if (transform.isIdentity()) return;
+  for (Vec3& p : mesh.positions) p = transform.point(p);
+  for (Vec3& n : mesh.normals) {
+    const Vec3 w = transform.normal(n);
+    const double len = w.norm();
+    n = len > 0 ? Vec3(w / len) : w;
+  }
+  if (transform.flipsOrientation())
+    for (auto& t : mesh.triangles) std::swap(t[1], t[2]);
+}
+
 }  // namespace cip

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "cip/core/vec3.h"
+#include "cip/core/world_transform.h"
 
 namespace cip {
 
@@ -54,6 +55,11 @@ struct MeshTopology {
 
 /// Counts boundary, non-manifold and inconsistently oriented edges, components and the Euler characteristic.
 MeshTopology analyseTopology(const TriangleMesh& mesh);
+
+/// Maps a mesh in a model's grid frame to the world of `transform`: positions affinely, normals by the
+/// inverse transpose (renormalised), and triangles re-wound when the map flips orientation, so that winding
+/// and normals stay outward (towards the same side of the surface as before).
+void transformMesh(TriangleMesh& mesh, const WorldTransform& transform);
 
 /// Throws cip::Error when a triangle index is out of range, the normal table has the wrong size, or a
 /// position is not finite (`name` starts the message).

@@ -1,6 +1,7 @@
 #include "cip/model/model.h"
 
 #include <algorithm>
+#include <limits>
 
 namespace cip {
 
@@ -48,6 +49,30 @@ std::int64_t Model::findCell(std::int64_t i, std::int64_t j, std::int64_t k) con
       [&](const ModelCell& c, const std::array<std::uint32_t, 3>& t) { return key(c.index) < t; });
   if (it == cells.end() || key(it->index) != target) return -1;
   return it - cells.begin();
+}
+
+std::pair<Vec3, Vec3> worldBounds(const Model& model, const WorldTransform& world) {
+  if (model.cells.empty()) {
+    const Vec3 o = world.point(model.geometry.origin);
+    return {o, o};
+  }
+  const GridGeometry& g = model.geometry;
+  if (world.isIdentity()) {  // exact corners, no rounding of centres
+    Vec3 lo = model.cellOrigin(0), hi = lo;
+    for (std::size_t c = 1; c < model.cells.size(); ++c) {
+      lo = lo.cwiseMin(model.cellOrigin(c));
+      hi = hi.cwiseMax(model.cellOrigin(c));
+    }
+    return {g.indexToWorld(lo), g.indexToWorld(hi + Vec3::Ones())};
+  }
+  const Vec3 half = world.linear.cwiseAbs() * (0.5 * g.spacing);  // world half-extent of any cell
+  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (std::size_t c = 0; c < model.cells.size(); ++c) {
+    const Vec3 centre = world.point(g.indexToWorld(model.cellOrigin(c) + Vec3::Constant(0.5)));
+    lo = lo.cwiseMin(centre - half);
+    hi = hi.cwiseMax(centre + half);
+  }
+  return {lo, hi};
 }
 
 }  // namespace cip

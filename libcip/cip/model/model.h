@@ -6,9 +6,11 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "cip/core/grid_geometry.h"
+#include "cip/core/world_transform.h"
 #include "cip/patch/corner_patch.h"
 #include "cip/reference/isovertex.h"
 #include "cip/reference/reconstruction.h"
@@ -68,5 +70,10 @@ struct Model {
   /// Index of the cell with grid index (i,j,k), or -1 if it is empty (binary search).
   std::int64_t findCell(std::int64_t i, std::int64_t j, std::int64_t k) const;
 };
+
+/// World box (lo, hi) of the model's non-empty cells under `world` (tight: each cell's box is mapped as a
+/// box, so a rotated grid gets the box of its rotated cells); the mapped grid origin twice when the model
+/// is empty.
+std::pair<Vec3, Vec3> worldBounds(const Model& model, const WorldTransform& world);
 
 }  // namespace cip

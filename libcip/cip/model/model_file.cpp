@@ -57,6 +57,10 @@ std::vector<std::uint8_t> serializeModel(const Model& m, const ModelFileOptions&
     return serializeModelV2(m, options.v2 ? *options.v2 : ModelFileV2Options::forMethod(m.method));
   if (options.version != 1)
     throw Error("model file version " + std::to_string(options.version) + " cannot be written");
+  if (hasOrientation(m.geometry))
+    throw Error(
+        "model file version 1 cannot store the orientation of a rotated, flipped or anatomically placed "
+        "volume; write version 2");
   std::vector<std::uint8_t> header;
   appendModelHeader(header, m, 1, 0);  // the reserved byte
   // The header up to the source description, the three counts, the tables (a cell: index, three bytes, four
@@ -227,7 +231,7 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   std::memcpy(&version, data + sizeof(kModelMagic), 4);
   if (version == 2) return parseModelV2(data, size, name);
   Model m;
-  readModelHeader(r, m);  // version 1 ignores its reserved byte
+  if (readModelHeader(r, m) != 0 || hasOrientation(m.geometry)) r.fail("unknown flags in a version 1 header");
   const TableCounts counts = readTableCounts(r);
   readVertices(r, counts.vertices, m);
   readCells(r, counts, m);

@@ -1,5 +1,7 @@
 #include "cip/model/model_file_header.h"
 
+#include <cmath>
+
 namespace cip {
 
 namespace {
@@ -41,7 +43,24 @@ std::uint8_t readModelHeader(ModelFileReader& r, Model& m) {
   r.need(sourceLen, "source description");
   m.source.assign(reinterpret_cast<const char*>(r.here()), sourceLen);
   r.skip(sourceLen);
-  return versionByte;
+  if (versionByte & kOrientationStored) {
+    Mat3 direction;
+    for (int col = 0; col < 3; ++col)
+      for (int row = 0; row < 3; ++row) direction(row, col) = r.getFinite("orientation");
+    for (int col = 0; col < 3; ++col)
+      if (std::abs(direction.col(col).norm() - 1) > 1e-9) r.fail("orientation axes are not unit vectors");
+    if (!(std::abs(direction.determinant()) >= 1e-6)) r.fail("orientation is singular");
+    const auto space = r.get<std::uint8_t>("world space");
+    if (space > static_cast<std::uint8_t>(WorldSpace::LPS))
+      r.fail("unknown world space " + std::to_string(space));
+    m.geometry.direction = direction;
+    m.geometry.space = static_cast<WorldSpace>(space);
+  }
+  return static_cast<std::uint8_t>(versionByte & ~kOrientationStored);
+}
+
+bool hasOrientation(const GridGeometry& g) {
+  return !g.axisAligned() || g.space != WorldSpace::Unspecified;
 }
 
 void appendModelHeader(std::vector<std::uint8_t>& out, const Model& m, std::uint32_t version,
@@ -56,9 +75,15 @@ void appendModelHeader(std::vector<std::uint8_t>& out, const Model& m, std::uint
   out.push_back(static_cast<std::uint8_t>(m.normalMode));
   out.push_back(static_cast<std::uint8_t>(m.method));
   out.push_back(m.reconstruction ? static_cast<std::uint8_t>(1 + static_cast<int>(*m.reconstruction)) : 0);
-  out.push_back(versionByte);
+  const bool oriented = hasOrientation(m.geometry);
+  out.push_back(oriented ? static_cast<std::uint8_t>(versionByte | kOrientationStored) : versionByte);
   append<std::uint32_t>(out, static_cast<std::uint32_t>(source.size()));
   out.insert(out.end(), source.begin(), source.end());
+  if (oriented) {
+    for (int col = 0; col < 3; ++col)
+      for (int row = 0; row < 3; ++row) append<double>(out, m.geometry.direction(row, col));
+    out.push_back(static_cast<std::uint8_t>(m.geometry.space));
+  }
 }
 
 }  // namespace cip

@@ -54,9 +54,18 @@ class ModelFileReader {
   const std::string& name_;
 };
 
-/// Reads the fields after the magic and version, up to and including the source description: grid geometry,
-/// isovalue, normal mode, patch method, reconstruction, one byte that the version defines (returned: version
-/// 1's reserved byte, version 2's flags) and the source. Rejects values out of range.
+/// Bit of the version-defined header byte that says an orientation block follows the source description: the
+/// grid's direction matrix (9 f64, column-major) and its world space (u8). Written only for grids that are
+/// not axis-aligned or name an anatomical frame, so other files are unchanged.
+constexpr std::uint8_t kOrientationStored = 0x80;
+
+/// Whether the header of a model on `g` carries the orientation block.
+bool hasOrientation(const GridGeometry& g);
+
+/// Reads the fields after the magic and version, up to and including the source description and the
+/// orientation block: grid geometry, isovalue, normal mode, patch method, reconstruction, one byte that the
+/// version defines (returned without kOrientationStored: version 1's reserved byte, version 2's flags), the
+/// source and, when flagged, the orientation. Rejects values out of range.
 std::uint8_t readModelHeader(ModelFileReader& r, Model& m);
 
 /// Appends the magic, `version` and the fields readModelHeader reads, with `versionByte` in the byte it
