@@ -1,6 +1,5 @@
 #include "cip/core/grid_geometry.h"
 
-#include <Eigen/LU>  // determinant()
 #include <cmath>
 #include <string>
 
