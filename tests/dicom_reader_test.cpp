@@ -1,7 +1,8 @@
 // DICOM series reader: series written here slice by slice (support/dicom_files.h, independent of GDCM) with
 // an oblique orientation, a gantry-tilt shear, shuffled file names and a rescale; the placement is checked
 // against the DICOM formula position_k + i * PixelSpacing[1] * row + j * PixelSpacing[0] * column, and the
-// values against the stored pixels. Then the hostile series.
+// values against the stored pixels; pydicom reads the same series (also RLE-compressed) independently. Then
+// the hostile series.
 #include "cip/readers/dicom_reader.h"
 
 #include <gtest/gtest.h>
@@ -228,13 +229,20 @@ TEST(DicomReader, HostileSeries) {
 }
 
 /// pydicom (Debian's python3-pydicom), an independent reader: for each file of the folder, sorted along the
-/// normal, its position, then the world position of every pixel by the standard's formula and its rescaled
-/// value, one "x y z value" line per pixel, row by row.
+/// normal, the world position of every pixel by the standard's formula and its rescaled value, one
+/// "x y z value" line per pixel, row by row. With "rle" it first rewrites every file RLE-compressed.
 const char* kPydicomScript = R"(
 import glob, sys
 import numpy as np
 import pydicom
-slices = [pydicom.dcmread(f) for f in glob.glob(sys.argv[1] + "/*.dcm")]
+from pydicom.uid import RLELossless
+files = glob.glob(sys.argv[1] + "/*.dcm")
+if sys.argv[2] == "rle":
+    for f in files:
+        ds = pydicom.dcmread(f)
+        ds.compress(RLELossless)
+        ds.save_as(f)
+slices = [pydicom.dcmread(f) for f in files]
 r = np.array([float(v) for v in slices[0].ImageOrientationPatient[:3]])
 c = np.array([float(v) for v in slices[0].ImageOrientationPatient[3:]])
 n = np.cross(r, c)
@@ -249,41 +257,49 @@ for s in slices:
             print("%.17g %.17g %.17g %.17g" % (x[0], x[1], x[2], values[j, i]))
 )";
 
-TEST(DicomReader, AgreesWithPydicom) {
+TEST(DicomReader, AgreesWithPydicomUncompressedAndRle) {
   if (std::system("/usr/bin/python3 -c 'import pydicom' >/dev/null 2>&1") != 0) {
     GTEST_SKIP() << "python3-pydicom is not installed";
   }
-  test::ScratchDir dir;
-  std::filesystem::create_directory(dir.file("series"));
   Series s;
   s.orientation = obliqueOrientation(-0.4, 0.9, 0.2);
   s.origin = {5.5, -300.125, 12};
   s.step = Vec3(0.1, -0.2, 3.0);
   s.slope = 2.5;
   s.intercept = 7;
-  for (int k = 0; k < s.count; ++k)
-    DicomWriter::write(dir.file("series/s" + std::to_string((k * 5) % s.count) + ".dcm"), s.slice(k));
-  test::writeAll(dir.file("read.py"), kPydicomScript);
-  const std::string out = dir.file("pydicom.txt");
-  ASSERT_EQ(std::system(
-                ("/usr/bin/python3 " + dir.file("read.py") + " " + dir.file("series") + " > " + out).c_str()),
-            0);
-  std::istringstream lines(test::readAll(out));
-  const DenseGrid g = readDicom(dir.file("series"));
-  int seen = 0;
-  for (int k = 0; k < s.count; ++k)
-    for (int j = 0; j < s.rows; ++j)
-      for (int i = 0; i < s.columns; ++i) {
-        Vec3 x;
-        double value = 0;
-        ASSERT_TRUE(lines >> x[0] >> x[1] >> x[2] >> value);
-        const Vec3 world =
-            g.geometry.origin + g.geometry.direction * g.geometry.spacing.cwiseProduct(Vec3(i, j, k));
-        EXPECT_LT((world - x).norm(), 1e-6) << i << " " << j << " " << k;
-        EXPECT_NEAR(g.at(i, j, k), value, 1e-9);
-        ++seen;
-      }
-  EXPECT_EQ(seen, s.columns * s.rows * s.count);
+  for (const std::string mode : {"plain", "rle"}) {
+    SCOPED_TRACE(mode);
+    test::ScratchDir dir;
+    std::filesystem::create_directory(dir.file("series"));
+    for (int k = 0; k < s.count; ++k)
+      DicomWriter::write(dir.file("series/s" + std::to_string((k * 5) % s.count) + ".dcm"), s.slice(k));
+    test::writeAll(dir.file("read.py"), kPydicomScript);
+    const std::string out = dir.file("pydicom.txt");
+    ASSERT_EQ(std::system(("/usr/bin/python3 " + dir.file("read.py") + " " + dir.file("series") + " " + mode +
+                           " > " + out)
+                              .c_str()),
+              0);
+    const bool rle =
+        test::readAll(dir.file("series/s0.dcm")).find("1.2.840.10008.1.2.5") != std::string::npos;
+    EXPECT_EQ(rle, mode == "rle");  // the files really are compressed (RLE Lossless transfer syntax)
+    std::istringstream lines(test::readAll(out));
+    const DenseGrid g = readDicom(dir.file("series"));
+    int seen = 0;
+    for (int k = 0; k < s.count; ++k)
+      for (int j = 0; j < s.rows; ++j)
+        for (int i = 0; i < s.columns; ++i) {
+          Vec3 x;
+          double value = 0;
+          ASSERT_TRUE(lines >> x[0] >> x[1] >> x[2] >> value);
+          const Vec3 world =
+              g.geometry.origin + g.geometry.direction * g.geometry.spacing.cwiseProduct(Vec3(i, j, k));
+          EXPECT_LT((world - x).norm(), 1e-6) << i << " " << j << " " << k;
+          EXPECT_NEAR(g.at(i, j, k), value, 1e-9);
+          EXPECT_NEAR(value, stored(i, j, k) * 2.5 + 7, 1e-9);
+          ++seen;
+        }
+    EXPECT_EQ(seen, s.columns * s.rows * s.count);
+  }
 }
 
 /// Runs the reader on `path`; returns "" on success, else the error, which must start with the path.
