@@ -294,9 +294,9 @@ int main(int argc, char** argv) {
   Options opt;
   CLI::App app{
       "extract: turn a volume into a corner-patch model (.cip).\n"
-      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz or .hdr/.img, .mha/.mhd, .vdb, or raw with "
-      "--dims/--type)\nor an analytic field "
-      "name (sphere, torus, gyroid, marschner-lobb, plane) sampled over [-1,1]^3.\n\n"
+      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz or .hdr/.img, .mha/.mhd, .vdb, a DICOM folder or\n"
+      ".dcm, or raw with --dims/--type) or an analytic field name (sphere, torus, gyroid, marschner-lobb,\n"
+      "plane) sampled over [-1,1]^3.\n\n"
       "Examples:\n"
       "  extract data/blobs.nhdr --iso 0.5 -o blobs.cip\n"
       "  extract sphere --resolution 64 --normals exact -o sphere.cip\n"

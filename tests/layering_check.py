@@ -3,7 +3,8 @@
 
 - Stages, bottom to top: a file in libcip/cip/<stage>/ includes "cip/<other>/..." only for <other> at or below
   <stage>, so the folder-level include graph has no cycle. Every included cip header exists.
-- libcip includes no Embree, OpenImageIO, OpenEXR or libpng header, and OpenVDB headers only from .cpp files.
+- libcip includes no Embree, OpenImageIO, OpenEXR or libpng header, and OpenVDB and GDCM headers only from .cpp
+  files.
 - No stage folder holds more than MAX_FILES source files.
 - No function in libcip, extract or raycast is longer than MAX_LINES lines (a definition that starts at column 0
   up to its closing brace, lambdas inside it included).
@@ -68,6 +69,8 @@ def layering_findings(root):
                     findings.append("%s: includes %s (Embree and the image libraries stay out of libcip)" % (rel, header))
                 elif header.startswith("openvdb/") and path.endswith(".h"):
                     findings.append("%s: includes %s in a header (OpenVDB only in .cpp files)" % (rel, header))
+                elif header.startswith("gdcm") and path.endswith(".h"):
+                    findings.append("%s: includes %s in a header (GDCM only in .cpp files)" % (rel, header))
     return findings
 
 
@@ -117,6 +120,7 @@ def self_test(root):
         "loose file": ("libcip/cip/planted.h", "\n"),
         "Embree in libcip": ("libcip/cip/mesh/planted.h", "#include <embree3/rtcore.h>\n"),
         "OpenVDB in a header": ("libcip/cip/readers/planted.h", "#include <openvdb/openvdb.h>\n"),
+        "GDCM in a header": ("libcip/cip/readers/planted.h", "#include <gdcmReader.h>\n"),
         "long function": ("extract/planted.cpp",
                           "int planted(int x) {\n" + "  x += 1;\n" * MAX_LINES + "  return x;\n}\n"),
         "crowded folder": ("libcip/cip/topology/", None),

@@ -1,9 +1,13 @@
 // NRRD reader: the shared .nhdr volumes, header parsing (type aliases, 4-D with a leading size-1 axis, space
-// directions, origin), attached and detached raw and gzip data, skips, and the error paths.
+// directions, origin), attached and detached raw, gzip, bzip2, hex and ascii data, several data files (LIST
+// and numbered), skips, and the error paths (placement and frames: nrrd_placement_test.cpp).
 #include "cip/readers/nrrd_reader.h"
 
 #include <gtest/gtest.h>
 
+#include <filesystem>
+
+#include "cip/readers/volume_reader.h"
 #include "support/volume_files.h"
 
 namespace cip {
@@ -11,6 +15,10 @@ namespace {
 
 using test::expectError;
 using test::sharedData;
+
+std::uint64_t readAllSize(const std::string& path) {
+  return std::filesystem::file_size(path);
+}
 
 unsigned char byteAt(const std::string& bytes, std::int64_t n) {
   return static_cast<unsigned char>(bytes[n]);
@@ -95,7 +103,7 @@ TEST(NrrdHeader, FieldsAndDefaults) {
   EXPECT_EQ(h.dims, (std::array<std::int64_t, 3>{2, 3, 4}));
   EXPECT_EQ(h.spacing, Vec3::Ones());
   EXPECT_EQ(h.origin, Vec3::Zero());
-  EXPECT_EQ(h.dataFile, "x.raw");
+  EXPECT_EQ(h.dataFiles, std::vector<std::string>{"x.raw"});
   EXPECT_FALSE(h.attached);
 
   h = parseNrrdHeader(
@@ -105,6 +113,8 @@ TEST(NrrdHeader, FieldsAndDefaults) {
       "byte skip: 3\r\nline skip: 2\r\nmy key:=my value\r\n\r\nBINARY\x00\x01");
   EXPECT_EQ(h.dims, (std::array<std::int64_t, 3>{5, 6, 7}));
   EXPECT_EQ(h.spacing, Vec3(0.5, 2, 1.25));
+  EXPECT_EQ(h.direction, Mat3(Vec3(1, -1, 1).asDiagonal()));  // the negative y direction flips that axis
+  EXPECT_EQ(h.space, WorldSpace::RAS);
   EXPECT_EQ(h.origin, Vec3(1.5, -2, 30));
   EXPECT_EQ(h.endian, Endian::Big);
   EXPECT_EQ(h.encoding, NrrdEncoding::Gzip);
@@ -123,7 +133,7 @@ TEST(NrrdHeader, FieldsAndDefaults) {
       "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 2 2 2\nspacings: 0.1 0.2 0.3\ncontent: a:=b\n"
       "encoding: raw\ndatafile: a b.raw\n");
   EXPECT_EQ(h.spacing, Vec3(0.1, 0.2, 0.3));
-  EXPECT_EQ(h.dataFile, "a b.raw");
+  EXPECT_EQ(h.dataFiles, std::vector<std::string>{"a b.raw"});
 }
 
 TEST(NrrdHeader, CorruptHeaders) {
@@ -140,22 +150,30 @@ TEST(NrrdHeader, CorruptHeaders) {
   bad(head + "dimension: 3\ndimension: 3\n", {"line 4", "twice"});
   bad(head + "dimension: 2\nsizes: 4 4\n" + tail, {"line 3", "dimension 2"});
   bad(head + "dimension: 5\nsizes: 1 1 4 4 4\n" + tail, {"dimension 5"});
-  bad(head + "dimension: 4\nsizes: 3 4 4 4\n" + tail, {"line 4", "3x4x4x4", "leading axis of size 1"});
+  bad(head + "dimension: 4\nsizes: 3 4 4 4\n" + tail, {"line 4", "3x4x4x4", "not spatial"});
   bad(head + "dimension: 3\nsizes: 4 4\n" + tail, {"sizes has 2 entries"});
   bad(head + "dimension: 3\nsizes: 4 -4 4\n" + tail, {"at least 1"});
   bad(head + "dimension: 3\nsizes: 4 four 4\n" + tail, {"'four' is not an integer"});
-  bad(head + "dimension: 3\nsizes: 4 4 4\nspace directions: (1,0,0) (0,0.7,0.7) (0,0,1)\n" + tail,
-      {"rotated or sheared", "axis 1"});
+  bad(head + "dimension: 3\nsizes: 4 4 4\nspace directions: (1,0,0) (0,0.7,0.7) (0,1.4,1.4)\n" + tail,
+      {"line 5", "singular"});
   bad(head + "dimension: 3\nsizes: 4 4 4\nspace directions: (1,0,0) (0,1,0) (0,0,1\n" + tail,
       {"parenthesis"});
   bad(head + "dimension: 3\nsizes: 4 4 4\nspace directions: (1,0) (0,1) (0,0)\n" + tail, {"3 components"});
   bad(head + "dimension: 3\nsizes: 4 4 4\nspace origin: (1,2)\n" + tail, {"space origin"});
   bad(head + "dimension: 3\nsizes: 4 4 4\nspacings: 1 0 1\n" + tail, {"spacing"});
-  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: bzip2\ndata file: x\n", {"bzip2", "not supported"});
   bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: morse\ndata file: x\n", {"unknown encoding 'morse'"});
   bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\n", {"no 'data file'"});
-  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: LIST\n", {"LIST"});
-  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: s%03d.raw 1 4 1\n", {"numbered"});
+  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: LIST\n", {"LIST names no files"});
+  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: LIST 2\na\nb\n",
+      {"subdimension 2 needs 4 data files", "names 2"});
+  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: s%03d%d.raw 1 4 1\n", {"more than one"});
+  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: s%s.raw 1 4 1\n", {"integer conversion"});
+  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: s%d.raw 4 1 1\n",
+      {"not a valid sequence"});
+  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: s%d.raw 1 4 0\n",
+      {"not a valid sequence"});
+  bad(head + "dimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: s%d.raw 1 999999999 1\n",
+      {"numbered files, more than"});
   bad(head + "dimension: 3\nsizes: 4 4 4\n", {"no 'encoding'"});
   bad("NRRD0004\ntype: int16\ndimension: 3\nsizes: 4 4 4\n" + tail, {"no 'endian'"});
   bad(head + "sizes: 4 4 4\n" + tail, {"no 'dimension'"});
@@ -296,6 +314,112 @@ TEST(NrrdReader, DataErrors) {
   expectError([&] { readNrrd(dir.file("c.nhdr")); }, {"c.nhdr", "line 3"});
 }
 
+TEST(NrrdReader, Bzip2AndHex) {
+  test::ScratchDir dir;
+  const std::string p = payload();
+  test::writeAll(dir.file("b.nrrd"), kHead + "encoding: bzip2\n\n" + test::bzip2Bytes(p));
+  expectPayload(readNrrd(dir.file("b.nrrd")));
+  // Two concatenated streams, byte skip counted in decompressed bytes, detached.
+  test::writeAll(dir.file("b.raw.bz2"),
+                 test::bzip2Bytes("abc" + p.substr(0, 7)) + test::bzip2Bytes(p.substr(7)));
+  test::writeAll(dir.file("b.nhdr"), kHead + "encoding: bz2\nbyte skip: 3\ndata file: b.raw.bz2\n");
+  expectPayload(readNrrd(dir.file("b.nhdr")));
+  // A large stream against the reference volume.
+  const std::string raw = test::readAll(sharedData("tooth_103x94x161_uint8.raw"));
+  test::writeAll(
+      dir.file("t.nrrd"),
+      "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 103 94 161\nencoding: bzip2\n\n" + test::bzip2Bytes(raw));
+  EXPECT_EQ(readNrrd(dir.file("t.nrrd")).values, readNrrd(sharedData("tooth.nhdr")).values);
+  // Hex: two digits per byte, blanks anywhere between bytes.
+  std::string hex;
+  const char* digits = "0123456789abcdef";
+  for (std::size_t n = 0; n < p.size(); ++n) {
+    hex += digits[byteAt(p, static_cast<std::int64_t>(n)) >> 4];
+    hex += digits[byteAt(p, static_cast<std::int64_t>(n)) & 15];
+    hex += n % 5 == 4 ? "\n" : "";
+  }
+  test::writeAll(dir.file("h.nrrd"), kHead + "encoding: hex\n\n" + hex + "\n");
+  expectPayload(readNrrd(dir.file("h.nrrd")));
+  test::writeAll(dir.file("hx.nrrd"), kHead + "encoding: hex\n\n" + hex.substr(0, 6) + "zz" + hex.substr(8));
+  expectError([&] { readNrrd(dir.file("hx.nrrd")); }, {"hx.nrrd", "'z'", "not a hex digit"});
+  test::writeAll(dir.file("hl.nrrd"), kHead + "encoding: hex\n\n" + hex + "ab");
+  expectError([&] { readNrrd(dir.file("hl.nrrd")); }, {"hl.nrrd", "continues past its declared size"});
+}
+
+TEST(NrrdReader, HostileBzip2) {
+  test::ScratchDir dir;
+  const std::string p = payload();
+  // Not bzip2 at all.
+  test::writeAll(dir.file("n.nrrd"), kHead + "encoding: bzip2\n\n" + p);
+  expectError([&] { readNrrd(dir.file("n.nrrd")); }, {"n.nrrd", "corrupt compressed data", "bzip2"});
+  // A flipped byte inside the stream: the block CRC or the Huffman data fails.
+  std::string bz = test::bzip2Bytes(p + std::string(5000, 'x'));
+  bz[bz.size() / 2] = static_cast<char>(bz[bz.size() / 2] ^ 0x55);
+  test::writeAll(dir.file("c.nrrd"),
+                 "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 5024 1 1\nencoding: bzip2\n\n" + bz);
+  expectError([&] { readNrrd(dir.file("c.nrrd")); }, {"c.nrrd", "corrupt compressed data"});
+  // Decompresses far past the declared size: stopped right after it.
+  test::writeAll(dir.file("big.nrrd"),
+                 kHead + "encoding: bzip2\n\n" + test::bzip2Bytes(p + std::string(50 << 20, 'z')));
+  expectError([&] { readNrrd(dir.file("big.nrrd")); },
+              {"big.nrrd", "continues past its declared size of 24 bytes"});
+  // Decompresses to less; truncated; empty.
+  test::writeAll(dir.file("less.nrrd"), kHead + "encoding: bzip2\n\n" + test::bzip2Bytes(p.substr(0, 10)));
+  expectError([&] { readNrrd(dir.file("less.nrrd")); }, {"less.nrrd", "ends after 10 of 24 bytes"});
+  std::string cut = test::bzip2Bytes(p + std::string(3000, 'q'));
+  test::writeAll(dir.file("cut.nrrd"), kHead + "encoding: bzip2\n\n" + cut.substr(0, cut.size() / 2));
+  expectError([&] { readNrrd(dir.file("cut.nrrd")); }, {"cut.nrrd"});
+  test::writeAll(dir.file("e.nrrd"), kHead + "encoding: bzip2\n\n");
+  expectError([&] { readNrrd(dir.file("e.nrrd")); }, {"e.nrrd", "truncated"});
+}
+
+/// The payload split into `parts` equal pieces.
+std::vector<std::string> pieces(int parts) {
+  const std::string p = payload();
+  std::vector<std::string> out;
+  const std::size_t n = p.size() / static_cast<std::size_t>(parts);
+  for (int i = 0; i < parts; ++i) out.push_back(p.substr(static_cast<std::size_t>(i) * n, n));
+  return out;
+}
+
+TEST(NrrdReader, SeveralDataFiles) {
+  test::ScratchDir dir;
+  std::filesystem::create_directory(dir.file("sub"));
+  // LIST: one file per slice (k), with a subdimension, names relative to the header's folder.
+  auto two = pieces(2);
+  test::writeAll(dir.file("sub/zero.raw"), two[0]);
+  test::writeAll(dir.file("one.raw"), two[1]);
+  test::writeAll(dir.file("l.nhdr"), kHead + "encoding: raw\ndata file: LIST 2\nsub/zero.raw\none.raw\n");
+  expectPayload(readNrrd(dir.file("l.nhdr")));
+  EXPECT_EQ(nrrdDataPaths(dir.file("l.nhdr"), readNrrdHeader(dir.file("l.nhdr"))),
+            (std::vector<std::string>{dir.file("sub/zero.raw"), dir.file("one.raw")}));
+  EXPECT_EQ(volumeFileBytes(dir.file("l.nhdr")), readAllSize(dir.file("l.nhdr")) + payload().size());
+  // A numbered format, counting down, each file gzip-compressed with its own byte skip.
+  auto four = pieces(4);
+  for (const auto& [name, piece] :
+       {std::pair{"s009.gz", 0}, {"s006.gz", 1}, {"s003.gz", 2}, {"s000.gz", 3}}) {
+    test::writeAll(dir.file(name), test::gzipBytes("#" + four[static_cast<std::size_t>(piece)]));
+  }
+  test::writeAll(dir.file("f.nhdr"), kHead + "encoding: gzip\nbyte skip: 1\ndata file: s%03d.gz 9 0 -3\n");
+  expectPayload(readNrrd(dir.file("f.nhdr")));
+  // Ascii across files.
+  test::writeAll(dir.file("a1.txt"), "-1500 -1400 -1300 -1507 -1407 -1307\n");
+  test::writeAll(dir.file("a2.txt"), "-500 -400 -300 -507 -407 -307");
+  test::writeAll(dir.file("a.nhdr"),
+                 "NRRD0004\ntype: short\ndimension: 3\nsizes: 3 2 2\nencoding: ascii\n"
+                 "data file: a%d.txt 1 2 1 2\n");
+  expectPayload(readNrrd(dir.file("a.nhdr")));
+  // A missing file of the list, a file of the wrong size, files that cannot share the data equally.
+  test::writeAll(dir.file("m.nhdr"), kHead + "encoding: raw\ndata file: LIST\nsub/zero.raw\ngone.raw\n");
+  expectError([&] { readNrrd(dir.file("m.nhdr")); }, {"m.nhdr", "gone.raw", "cannot open"});
+  test::writeAll(dir.file("w.nhdr"), kHead + "encoding: raw\ndata file: LIST\nsub/zero.raw\nl.nhdr\n");
+  expectError([&] { readNrrd(dir.file("w.nhdr")); }, {"l.nhdr", "bytes"});
+  test::writeAll(dir.file("u.nhdr"),
+                 kHead + "encoding: raw\ndata file: LIST\none.raw\none.raw\none.raw\none.raw\none.raw\n");
+  expectError([&] { readNrrd(dir.file("u.nhdr")); },
+              {"u.nhdr", "5 data files cannot hold equal parts of 12"});
+}
+
 TEST(NrrdReader, HugeDimsFailBeforeAllocating) {
   test::ScratchDir dir;
   test::writeAll(
@@ -307,7 +431,7 @@ TEST(NrrdReader, HugeDimsFailBeforeAllocating) {
                  "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 1048576 1048576 1024\nencoding: raw\n"
                  "data file: m.raw\n");
   expectError([&] { readNrrd(dir.file("m.nhdr")); }, {"m.nhdr", "MiB", "1048576x1048576x1024"});
-  expectError([&] { readNrrd(sharedData("tooth.nhdr"), 1 << 20); }, {"tooth.nhdr", "MiB"});
+  expectError([&] { readNrrd(sharedData("tooth.nhdr"), {1 << 20}); }, {"tooth.nhdr", "MiB"});
 }
 
 }  // namespace

@@ -31,6 +31,10 @@ TEST(VolumeReader, FormatFromName) {
   EXPECT_EQ(volumeFormatOf("x.MHD"), VolumeFormat::MetaImage);
   EXPECT_EQ(volumeFormatOf("x.raw"), VolumeFormat::Raw);
   EXPECT_EQ(volumeFormatOf("x.gz"), VolumeFormat::Raw);
+  EXPECT_EQ(volumeFormatOf("IM0001.DCM"), VolumeFormat::Dicom);
+  test::ScratchDir dir;
+  EXPECT_EQ(volumeFormatOf(dir.path()), VolumeFormat::Dicom);  // a folder is a DICOM series
+  EXPECT_EQ(volumeFormatOf(dir.file("missing")), VolumeFormat::Raw);
 }
 
 TEST(VolumeReader, FileBytesCountDetachedData) {
@@ -53,6 +57,11 @@ TEST(VolumeReader, FileBytesCountDetachedData) {
   const std::string garbage = write("g.nhdr", "not a header");
   EXPECT_EQ(volumeFileBytes(garbage), 12u);
   EXPECT_EQ(volumeFileBytes(dir.file("none.nrrd")), 0u);
+  // A folder (DICOM series) counts the files in it.
+  std::filesystem::create_directory(dir.file("series"));
+  write("series/a.dcm", std::string(300, 'a'));
+  write("series/b.dcm", std::string(200, 'b'));
+  EXPECT_EQ(volumeFileBytes(dir.file("series")), 500u);
 }
 
 TEST(VolumeReader, NrrdAsOneBrick) {

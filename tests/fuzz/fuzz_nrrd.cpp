@@ -12,7 +12,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   }
   std::string path = cip::fuzz::writeInput(data, size, ".nrrd");
   try {
-    cip::readNrrd(path, cip::fuzz::kMaxFuzzBytes);
+    cip::readNrrd(path, {cip::fuzz::kMaxFuzzBytes});
   } catch (const cip::Error&) {
   }
   unlink(path.c_str());

@@ -1,6 +1,7 @@
-// Test helpers for the volume readers: whole-file reads and writes, gzip compression, and expectations on
-// cip::Error messages (and the scratch folder of support/scratch_dir.h).
+// Test helpers for the volume readers: whole-file reads and writes, gzip and bzip2 compression, and
+// expectations on cip::Error messages (and the scratch folder of support/scratch_dir.h).
 #pragma once
+#include <bzlib.h>
 #include <gtest/gtest.h>
 #include <zlib.h>
 
@@ -51,6 +52,17 @@ inline std::string gzipBytes(const std::string& data) {
   deflateEnd(&zs);
   if (ret != Z_STREAM_END) throw std::runtime_error("zlib deflate");
   out.resize(zs.total_out);
+  return out;
+}
+
+/// bzip2-compresses `data` (as written by the bzip2 tool).
+inline std::string bzip2Bytes(const std::string& data) {
+  std::string out(data.size() + data.size() / 100 + 1024, '\0');
+  auto n = static_cast<unsigned>(out.size());
+  if (BZ2_bzBuffToBuffCompress(out.data(), &n, const_cast<char*>(data.data()),
+                               static_cast<unsigned>(data.size()), 9, 0, 0) != BZ_OK)
+    throw std::runtime_error("bzip2");
+  out.resize(n);
   return out;
 }
 

@@ -6,6 +6,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
+#include <limits>
 #include <map>
 #include <memory>
 #include <vector>
@@ -135,6 +136,7 @@ struct Field {
 /// text).
 struct HeaderLines {
   std::map<std::string, Field> fields;
+  std::vector<std::string> list;  ///< `data file: LIST`: the file names on the lines after it
   int version = 0;
   std::size_t headerBytes = 0;
   bool blank = false;
@@ -183,6 +185,30 @@ void addFieldLine(std::string_view raw, int lineNo, std::map<std::string, Field>
   fields[key] = Field{value, lineNo};
 }
 
+/// After `data file: LIST`: the remaining lines of the header (up to a blank line or the end of the text)
+/// are data file names. Returns the position after them.
+std::size_t readListLines(std::string_view text, std::size_t pos, int& lineNo,
+                          std::vector<std::string>& names) {
+  while (pos < text.size()) {
+    std::size_t nl = text.find('\n', pos);
+    std::size_t end = nl == std::string_view::npos ? text.size() : nl;
+    std::size_t next = nl == std::string_view::npos ? text.size() : nl + 1;
+    ++lineNo;
+    if (next > kNrrdMaxHeaderBytes) {
+      throw Error("header longer than " + std::to_string(kNrrdMaxHeaderBytes >> 20) + " MiB");
+    }
+    std::string name = trim(text.substr(pos, end - pos));
+    pos = next;
+    if (name.empty()) break;
+    if (name.find('\0') != std::string::npos) fail(lineNo, "binary data in the data file list");
+    if (static_cast<std::int64_t>(names.size()) >= kNrrdMaxDataFiles) {
+      fail(lineNo, "more than " + std::to_string(kNrrdMaxDataFiles) + " data files");
+    }
+    names.push_back(name);
+  }
+  return pos;
+}
+
 /// Splits the text into lines up to the first blank line (or the end of the text): the magic line, then
 /// fields.
 HeaderLines readHeaderLines(std::string_view text) {
@@ -215,6 +241,11 @@ HeaderLines readHeaderLines(std::string_view text) {
       break;
     }
     addFieldLine(raw, lineNo, lines.fields);
+    if (const Field* f = lines.get("datafile");
+        f && f->line == lineNo && tokens(f->value).size() >= 1 && tokens(f->value)[0] == "LIST") {
+      pos = readListLines(text, pos, lineNo, lines.list);
+      break;
+    }
   }
   if (lineNo == 0) throw Error("empty file (not a NRRD file)");
   lines.headerBytes = pos;
@@ -245,14 +276,13 @@ SampleType parseTypeField(const Field& f) {
 int parseDimensionField(const Field& f) {
   std::int64_t d = parseInteger(f.value, f.line, "dimension");
   if (d != 3 && d != 4) {
-    fail(f.line,
-         "dimension " + f.value + " is not supported (a volume needs 3, or 4 with a leading axis of size 1)");
+    fail(f.line, "dimension " + f.value +
+                     " is not supported (a volume needs 3, or 4 with one non-spatial axis, first or last)");
   }
   return static_cast<int>(d);
 }
 
-/// The sizes of the three spatial axes (the last three of `dimension`).
-std::array<std::int64_t, 3> parseSizesField(const Field& f, int dimension) {
+std::vector<std::int64_t> parseSizesField(const Field& f, int dimension) {
   auto t = tokens(f.value);
   expectOneEntryPerAxis(t.size(), dimension, f.line, "sizes");
   std::vector<std::int64_t> sizes;
@@ -260,51 +290,124 @@ std::array<std::int64_t, 3> parseSizesField(const Field& f, int dimension) {
     sizes.push_back(parseInteger(s, f.line, "sizes"));
     if (sizes.back() < 1) fail(f.line, "sizes: every size must be at least 1, got " + s);
   }
-  if (dimension == 4 && sizes[0] != 1) {
-    fail(f.line, "4-D volume " + joinDims(sizes) +
-                     " has several values per voxel; only a leading axis of size 1 is supported");
-  }
-  const int first = dimension - 3;  // index of the first spatial axis
-  return {sizes[first], sizes[first + 1], sizes[first + 2]};
+  return sizes;
 }
 
-/// The spacing from "space directions": one axis-aligned vector per spatial axis, 'none' for a leading
-/// non-spatial axis.
-void parseSpaceDirections(const Field& f, int dimension, Vec3& spacing) {
-  const int first = dimension - 3;
+/// The space a `space` field names, and its dimension (4 for the "-time" spaces, which cip does not read).
+WorldSpace parseSpaceName(const Field& f) {
+  static const std::map<std::string, std::pair<WorldSpace, int>> spaces = {
+      {"right-anterior-superior", {WorldSpace::RAS, 3}},
+      {"ras", {WorldSpace::RAS, 3}},
+      {"left-anterior-superior", {WorldSpace::LAS, 3}},
+      {"las", {WorldSpace::LAS, 3}},
+      {"left-posterior-superior", {WorldSpace::LPS, 3}},
+      {"lps", {WorldSpace::LPS, 3}},
+      {"scanner-xyz", {WorldSpace::Unspecified, 3}},
+      {"3d-right-handed", {WorldSpace::Unspecified, 3}},
+      {"3d-left-handed", {WorldSpace::Unspecified, 3}},
+      {"right-anterior-superior-time", {WorldSpace::RAS, 4}},
+      {"rast", {WorldSpace::RAS, 4}},
+      {"left-anterior-superior-time", {WorldSpace::LAS, 4}},
+      {"last", {WorldSpace::LAS, 4}},
+      {"left-posterior-superior-time", {WorldSpace::LPS, 4}},
+      {"lpst", {WorldSpace::LPS, 4}},
+      {"scanner-xyz-time", {WorldSpace::Unspecified, 4}},
+      {"3d-right-handed-time", {WorldSpace::Unspecified, 4}},
+      {"3d-left-handed-time", {WorldSpace::Unspecified, 4}}};
+  auto it = spaces.find(fieldKey(f.value));
+  if (it == spaces.end()) return WorldSpace::Unspecified;  // an unknown name: world coordinates of its own
+  if (it->second.second != 3) {
+    fail(f.line, "space '" + f.value + "' has 4 dimensions; only 3-D spaces are supported");
+  }
+  return it->second.first;
+}
+
+/// `space` or `space dimension` (which must be 3); true when either is given.
+bool parseSpace(const HeaderLines& lines, NrrdHeader& h) {
+  const Field* name = lines.get("space");
+  const Field* dimension = lines.get("spacedimension");
+  if (name) h.space = parseSpaceName(*name);
+  if (dimension && parseInteger(dimension->value, dimension->line, "space dimension") != 3) {
+    fail(dimension->line, "space dimension " + dimension->value + " is not supported (only 3)");
+  }
+  return name || dimension;
+}
+
+bool spatialKind(const std::string& kind) {
+  const std::string k = fieldKey(kind);
+  return k == "domain" || k == "space" || k == "???" || k == "none";
+}
+
+/// The index of the non-spatial axis of a 4-D header: the one whose space direction is 'none', else whose
+/// kind is not spatial, else a first or last axis of size 1.
+int nonSpatialAxis(const HeaderLines& lines, const std::vector<std::int64_t>& sizes,
+                   const Field& sizesField) {
+  std::vector<int> axes;
+  int line = sizesField.line;
+  if (const Field* dirs = lines.get("spacedirections")) {
+    auto t = vectorTokens(dirs->value, dirs->line, "space directions");
+    expectOneEntryPerAxis(t.size(), 4, dirs->line, "space directions");
+    for (int a = 0; a < 4; ++a)
+      if (t[a] == "none") axes.push_back(a);
+    line = dirs->line;
+  } else if (const Field* kinds = lines.get("kinds")) {
+    auto t = tokens(kinds->value);
+    expectOneEntryPerAxis(t.size(), 4, kinds->line, "kinds");
+    for (int a = 0; a < 4; ++a)
+      if (!spatialKind(t[a])) axes.push_back(a);
+    line = kinds->line;
+  } else if (sizes[0] == 1 || sizes[3] == 1) {
+    axes.push_back(sizes[0] == 1 ? 0 : 3);
+  } else {
+    fail(line, "4-D volume " + joinDims(sizes) +
+                   ": no 'kinds' or 'space directions' tell which axis is not spatial");
+  }
+  if (axes.size() != 1) {
+    fail(line, "4-D volume " + joinDims(sizes) + " needs exactly one non-spatial axis, the header gives " +
+                   std::to_string(axes.size()));
+  }
+  if (axes[0] != 0 && axes[0] != 3) {
+    fail(line, "the non-spatial axis " + std::to_string(axes[0]) + " of " + joinDims(sizes) +
+                   " is not supported (only the first or the last axis)");
+  }
+  return axes[0];
+}
+
+/// Placement from `space directions`: one 3-vector per spatial axis, 'none' for the non-spatial axis.
+void parseSpaceDirections(const Field& f, int dimension, int frameAxis, NrrdHeader& h) {
   auto t = vectorTokens(f.value, f.line, "space directions");
   expectOneEntryPerAxis(t.size(), dimension, f.line, "space directions");
+  Mat3 columns;
   std::vector<double> v;
-  for (int a = 0; a < 3; ++a) {
-    if (!parseVector(t[first + a], f.line, "space directions", v)) {
-      fail(f.line, "space directions: spatial axis " + std::to_string(a) + " is 'none'");
+  int a = 0;
+  for (int axis = 0; axis < dimension; ++axis) {
+    if (axis == frameAxis) continue;
+    if (!parseVector(t[axis], f.line, "space directions", v)) {
+      fail(f.line, "space directions: spatial axis " + std::to_string(axis) + " is 'none'");
     }
-    if (v.size() != 3) fail(f.line, "space directions: vectors must have 3 components, got " + t[first + a]);
-    double length = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    if (!std::isfinite(length) || length <= 0) {
-      fail(f.line, "space directions: axis " + std::to_string(a) + " has a zero or invalid length");
-    }
-    for (int b = 0; b < 3; ++b) {
-      if (b != a && std::abs(v[b]) > 1e-9 * length) {
-        fail(f.line, "space directions are rotated or sheared (axis " + std::to_string(a) + " is " +
-                         t[first + a] + "); only axis-aligned volumes are supported");
-      }
-    }
-    spacing[a] = std::abs(v[a]);
+    if (v.size() != 3) fail(f.line, "space directions: vectors must have 3 components, got " + t[axis]);
+    columns.col(a++) = Vec3(v[0], v[1], v[2]);
   }
-  if (dimension == 4 && t[0] != "none") fail(f.line, "space directions: the non-spatial axis must be 'none'");
+  GridGeometry g;
+  setAxes(g, columns, ("line " + std::to_string(f.line) + ": space directions").c_str());
+  h.spacing = g.spacing;
+  h.direction = g.direction;
 }
 
-/// The spacing from "spacings" ('nan' keeps an axis' spacing).
-void parseSpacings(const Field& f, int dimension, Vec3& spacing) {
-  const int first = dimension - 3;
+/// Spacing from `spacings` ('nan' keeps an axis' spacing of 1; a negative spacing flips its axis).
+void parseSpacings(const Field& f, int dimension, int frameAxis, NrrdHeader& h) {
   auto t = tokens(f.value);
   expectOneEntryPerAxis(t.size(), dimension, f.line, "spacings");
-  for (int a = 0; a < 3; ++a) {
-    double s = parseNumber(t[first + a], f.line, "spacings");
-    if (std::isnan(s)) continue;  // unknown spacing: keep 1
-    if (!std::isfinite(s) || s == 0) fail(f.line, "spacings: '" + t[first + a] + "' is not a valid spacing");
-    spacing[a] = std::abs(s);
+  int a = 0;
+  for (int axis = 0; axis < dimension; ++axis) {
+    if (axis == frameAxis) continue;
+    double s = parseNumber(t[axis], f.line, "spacings");
+    if (!std::isnan(s)) {
+      if (!std::isfinite(s) || s == 0) fail(f.line, "spacings: '" + t[axis] + "' is not a valid spacing");
+      h.spacing[a] = std::abs(s);
+      h.direction(a, a) = s < 0 ? -1 : 1;
+    }
+    ++a;
   }
 }
 
@@ -322,15 +425,25 @@ Vec3 parseSpaceOrigin(const Field& f) {
   return origin;
 }
 
-/// Type, dimension and sizes; then the spacing ("space directions", else "spacings") and the origin.
+/// Type, dimension, sizes and the non-spatial axis; then the placement ("space directions", else
+/// "spacings") and the origin.
 void parseGridFields(const HeaderLines& lines, NrrdHeader& h) {
   h.type = parseTypeField(lines.require("type", "type"));
   const int dimension = parseDimensionField(lines.require("dimension", "dimension"));
-  h.dims = parseSizesField(lines.require("sizes", "sizes"), dimension);
+  const Field& sizesField = lines.require("sizes", "sizes");
+  const std::vector<std::int64_t> sizes = parseSizesField(sizesField, dimension);
+  const int frameAxis = dimension == 4 ? nonSpatialAxis(lines, sizes, sizesField) : -1;
+  int a = 0;
+  for (int axis = 0; axis < dimension; ++axis) {
+    if (axis != frameAxis) h.dims[a++] = sizes[axis];
+  }
+  h.frames = frameAxis < 0 ? 1 : sizes[frameAxis];
+  h.framesFirst = frameAxis == 0;
+  parseSpace(lines, h);
   if (const Field* dirs = lines.get("spacedirections")) {
-    parseSpaceDirections(*dirs, dimension, h.spacing);
+    parseSpaceDirections(*dirs, dimension, frameAxis, h);
   } else if (const Field* spacings = lines.get("spacings")) {
-    parseSpacings(*spacings, dimension, h.spacing);
+    parseSpacings(*spacings, dimension, frameAxis, h);
   }
   if (const Field* f = lines.get("spaceorigin")) h.origin = parseSpaceOrigin(*f);
 }
@@ -339,38 +452,134 @@ NrrdEncoding parseEncodingField(const Field& f) {
   std::string e = fieldKey(f.value);
   if (e == "raw") return NrrdEncoding::Raw;
   if (e == "gzip" || e == "gz") return NrrdEncoding::Gzip;
+  if (e == "bzip2" || e == "bz2") return NrrdEncoding::Bzip2;
   if (e == "ascii" || e == "text" || e == "txt") return NrrdEncoding::Ascii;
-  if (e == "hex" || e == "bzip2" || e == "bz2") {
-    fail(f.line, "encoding '" + f.value + "' is not supported (raw, gzip and ascii are)");
-  }
-  fail(f.line, "unknown encoding '" + f.value + "'");
+  if (e == "hex") return NrrdEncoding::Hex;
+  fail(f.line, "unknown encoding '" + f.value + "' (raw, gzip, bzip2, ascii and hex are supported)");
 }
 
-/// "data file": one file name (attached data when absent, which needs the blank line).
+/// `%d`-style number formatting of `data file: FORMAT ...`: the pattern around one integer conversion with
+/// optional '0'/'-' flags and a width ("%%" is a literal '%').
+struct NamePattern {
+  std::string prefix, suffix;
+  bool zeroPad = false, left = false;
+  std::size_t width = 0;
+
+  std::string name(std::int64_t v) const {
+    std::string digits = std::to_string(v < 0 ? -v : v);
+    std::string sign = v < 0 ? "-" : "";
+    std::size_t pad = width > digits.size() + sign.size() ? width - digits.size() - sign.size() : 0;
+    if (left) return prefix + sign + digits + std::string(pad, ' ') + suffix;
+    if (zeroPad) return prefix + sign + std::string(pad, '0') + digits + suffix;
+    return prefix + std::string(pad, ' ') + sign + digits + suffix;
+  }
+};
+
+NamePattern parseNamePattern(const std::string& format, int line) {
+  NamePattern p;
+  bool seen = false;
+  std::string* out = &p.prefix;
+  for (std::size_t i = 0; i < format.size(); ++i) {
+    if (format[i] != '%') {
+      *out += format[i];
+      continue;
+    }
+    if (i + 1 < format.size() && format[i + 1] == '%') {
+      *out += '%';
+      ++i;
+      continue;
+    }
+    if (seen) fail(line, "data file: '" + format + "' has more than one number conversion");
+    seen = true;
+    ++i;
+    for (; i < format.size() && (format[i] == '0' || format[i] == '-'); ++i) {
+      (format[i] == '0' ? p.zeroPad : p.left) = true;
+    }
+    for (; i < format.size() && std::isdigit(static_cast<unsigned char>(format[i])) && p.width < 100; ++i) {
+      p.width = p.width * 10 + static_cast<std::size_t>(format[i] - '0');
+    }
+    if (i >= format.size() || (format[i] != 'd' && format[i] != 'i' && format[i] != 'u')) {
+      fail(line, "data file: '" + format + "' needs one integer conversion like %d or %03d");
+    }
+    out = &p.suffix;
+  }
+  if (!seen) fail(line, "data file: '" + format + "' has no number conversion like %03d");
+  return p;
+}
+
+/// The optional <subdim> after `LIST` or a format's numbers: how many axes each file holds, which fixes the
+/// number of files to the product of the sizes of the other axes.
+void checkSubdim(const std::string& token, std::size_t files, const HeaderLines& lines, int line) {
+  const std::int64_t subdim = parseInteger(token, line, "data file subdimension");
+  const Field& sizesField = lines.require("sizes", "sizes");
+  auto sizes = tokens(sizesField.value);
+  if (subdim < 1 || subdim > static_cast<std::int64_t>(sizes.size())) {
+    fail(line, "data file: subdimension " + token + " is not between 1 and the dimension");
+  }
+  std::int64_t expected = 1;
+  for (std::size_t a = static_cast<std::size_t>(subdim); a < sizes.size(); ++a) {
+    expected *= parseInteger(sizes[a], sizesField.line, "sizes");
+    if (expected > kNrrdMaxDataFiles) break;
+  }
+  if (expected != static_cast<std::int64_t>(files)) {
+    fail(line, "data file: subdimension " + token + " needs " + std::to_string(expected) +
+                   " data files, the header names " + std::to_string(files));
+  }
+}
+
+/// `data file: FORMAT MIN MAX STEP [SUBDIM]`: the names of the numbered files.
+std::vector<std::string> numberedFiles(const std::vector<std::string>& t, const HeaderLines& lines,
+                                       int line) {
+  const NamePattern pattern = parseNamePattern(t[0], line);
+  const std::int64_t first = parseInteger(t[1], line, "data file");
+  const std::int64_t last = parseInteger(t[2], line, "data file");
+  const std::int64_t step = parseInteger(t[3], line, "data file");
+  if (step == 0 || (last - first) / step < 0 || std::abs(first) > (std::int64_t(1) << 40) ||
+      std::abs(last) > (std::int64_t(1) << 40)) {
+    fail(line, "data file: numbers " + t[1] + " to " + t[2] + " by " + t[3] + " are not a valid sequence");
+  }
+  const std::int64_t count = (last - first) / step + 1;
+  if (count > kNrrdMaxDataFiles) {
+    fail(line, "data file: " + std::to_string(count) + " numbered files, more than " +
+                   std::to_string(kNrrdMaxDataFiles));
+  }
+  std::vector<std::string> names;
+  for (std::int64_t n = 0; n < count; ++n) names.push_back(pattern.name(first + n * step));
+  if (t.size() == 5) checkSubdim(t[4], names.size(), lines, line);
+  return names;
+}
+
+/// "data file": one name, LIST, or a numbered format (attached data when absent, which needs the blank line).
 void parseDataFile(const HeaderLines& lines, NrrdHeader& h) {
   if (const Field* f = lines.get("datafile")) {
     auto t = tokens(f->value);
     if (f->value.empty()) fail(f->line, "data file: empty file name");
-    if (!t.empty() && t[0] == "LIST") fail(f->line, "data file: LIST (several data files) is not supported");
-    if (t.size() >= 4 && t[0].find('%') != std::string::npos) {
-      fail(f->line, "data file: several numbered data files are not supported");
+    if (t[0] == "LIST") {
+      if (t.size() > 2) fail(f->line, "data file: LIST takes at most a subdimension after it");
+      if (lines.list.empty()) fail(f->line, "data file: LIST names no files on the lines after it");
+      h.dataFiles = lines.list;
+      if (t.size() == 2) checkSubdim(t[1], h.dataFiles.size(), lines, f->line);
+    } else if ((t.size() == 4 || t.size() == 5) && t[0].find('%') != std::string::npos) {
+      h.dataFiles = numberedFiles(t, lines, f->line);
+    } else {
+      h.dataFiles = {f->value};
     }
-    h.dataFile = f->value;
   } else if (!lines.blank) {
     throw Error("header has no 'data file' field and no blank line before attached data");
   }
-  h.attached = h.dataFile.empty();
+  h.attached = h.dataFiles.empty();
 }
 
 /// "byte skip" and "line skip", checked against the encoding.
 void parseSkips(const HeaderLines& lines, NrrdHeader& h) {
+  const bool text = h.encoding == NrrdEncoding::Ascii || h.encoding == NrrdEncoding::Hex;
+  const bool compressed = h.encoding == NrrdEncoding::Gzip || h.encoding == NrrdEncoding::Bzip2;
   if (const Field* f = lines.get("byteskip")) {
     h.byteSkip = parseInteger(f->value, f->line, "byte skip");
     if (h.byteSkip < -1) fail(f->line, "byte skip must be -1 or more");
     if (h.byteSkip == -1 && h.encoding != NrrdEncoding::Raw) fail(f->line, "byte skip -1 needs raw encoding");
-    if (h.byteSkip != 0 && h.encoding == NrrdEncoding::Ascii)
-      fail(f->line, "byte skip is not allowed with ascii encoding");
-    if (h.encoding == NrrdEncoding::Gzip && h.byteSkip > kMaxCompressedSkip) {
+    if (h.byteSkip != 0 && text) fail(f->line, "byte skip is not allowed with ascii or hex encoding");
+    if (compressed && h.byteSkip > kMaxCompressedSkip) {
       fail(f->line, "byte skip " + f->value + " is too large for compressed data (at most 1 GiB)");
     }
   }
@@ -442,127 +651,311 @@ std::uint64_t skipLines(const std::string& path, std::uint64_t start, std::int64
   }
 }
 
-/// Reads grid.values.size() numbers separated by blanks or commas; anything but blanks after them is an
-/// error.
-void readAsciiInto(ByteSource& source, DenseGrid& grid) {
-  constexpr std::size_t kMaxToken = 128;
-  std::vector<char> buffer(std::size_t(1) << 20);
-  std::string token;
-  std::size_t done = 0;
-  const std::size_t total = grid.values.size();
-  auto flush = [&] {
-    if (token.empty()) return;
-    if (done == total) {
-      throw Error(source.path() + ": ascii data has more than the " + std::to_string(total) +
-                  " values declared");
+/// Puts the samples of the file's data stream (all frames, in file order) that belong to the chosen frame
+/// into the grid: sample n of the stream is frame n % frames of voxel n / frames when the frame axis is
+/// first, frame n / count of voxel n % count when it is last.
+struct FrameSink {
+  DenseGrid& grid;
+  std::uint64_t count;   ///< voxels per frame
+  std::uint64_t frames;  ///< frames in the file
+  bool framesFirst;
+  std::uint64_t frame;
+
+  /// The stream samples [n, n + k) with values `v`.
+  void put(std::uint64_t n, const double* v, std::size_t k) const {
+    double* out = grid.values.data();
+    if (frames == 1) {
+      std::copy(v, v + k, out + n);
+    } else if (framesFirst) {
+      for (std::size_t i = 0; i < k; ++i)
+        if ((n + i) % frames == frame) out[(n + i) / frames] = v[i];
+    } else {
+      for (std::size_t i = 0; i < k; ++i)
+        if ((n + i) / count == frame) out[(n + i) % count] = v[i];
     }
-    char* end = nullptr;
-    double v = std::strtod(token.c_str(), &end);
-    if (end == token.c_str() || *end != '\0') {
-      throw Error(source.path() + ": ascii value " + std::to_string(done + 1) + " ('" + token +
-                  "') is not a number");
-    }
-    grid.values[done++] = v;
-    token.clear();
-  };
-  while (true) {
-    std::size_t got = source.read(buffer.data(), buffer.size());
-    for (std::size_t i = 0; i < got; ++i) {
-      char c = buffer[i];
+  }
+  /// The stream samples of the chosen frame within [first, end): all of them when frames are interleaved.
+  std::pair<std::uint64_t, std::uint64_t> wanted(std::uint64_t first, std::uint64_t end) const {
+    if (frames == 1 || framesFirst) return {first, end};
+    return {std::max(first, frame * count), std::min(end, (frame + 1) * count)};
+  }
+};
+
+/// Numbers separated by blanks or commas, read one at a time from a ByteSource.
+class AsciiNumbers {
+ public:
+  explicit AsciiNumbers(ByteSource& source) : source_(source), buffer_(std::size_t(1) << 20) {}
+
+  /// The next number; false at the end of the data. Throws for a token that is no number.
+  bool next(double& v) {
+    constexpr std::size_t kMaxToken = 128;
+    std::string token;
+    while (true) {
+      if (pos_ == size_ && !fill()) break;
+      char c = buffer_[pos_++];
       if (std::isspace(static_cast<unsigned char>(c)) || c == ',') {
-        flush();
-      } else {
-        token += c;
-        if (token.size() > kMaxToken) {
-          throw Error(source.path() + ": ascii value " + std::to_string(done + 1) + " is longer than " +
-                      std::to_string(kMaxToken) + " characters");
-        }
+        if (!token.empty()) break;
+        continue;
+      }
+      token += c;
+      if (token.size() > kMaxToken) {
+        throw Error(source_.path() + ": ascii value " + std::to_string(count_ + 1) + " is longer than " +
+                    std::to_string(kMaxToken) + " characters");
       }
     }
-    if (got < buffer.size()) break;
+    if (token.empty()) return false;
+    char* end = nullptr;
+    v = std::strtod(token.c_str(), &end);
+    if (end == token.c_str() || *end != '\0') {
+      throw Error(source_.path() + ": ascii value " + std::to_string(count_ + 1) + " ('" + token +
+                  "') is not a number");
+    }
+    ++count_;
+    return true;
   }
-  flush();
-  if (done < total) {
-    throw Error(source.path() + ": ascii data ends after " + std::to_string(done) + " of " +
-                std::to_string(total) + " values");
+
+ private:
+  bool fill() {
+    size_ = source_.read(buffer_.data(), buffer_.size());
+    pos_ = 0;
+    return size_ > 0;
   }
+  ByteSource& source_;
+  std::vector<char> buffer_;
+  std::size_t pos_ = 0, size_ = 0;
+  std::uint64_t count_ = 0;
+};
+
+/// Bytes written as pairs of hex digits (blanks between them ignored), from a file.
+class HexByteSource : public ByteSource {
+ public:
+  HexByteSource(const std::string& path, std::uint64_t offset) : ByteSource(path), text_(path, offset) {}
+  std::size_t read(void* buffer, std::size_t n) override {
+    auto* out = static_cast<unsigned char*>(buffer);
+    std::size_t done = 0;
+    int high = -1;
+    while (done < n) {
+      if (pos_ == size_) {
+        size_ = text_.read(chunk_.data(), chunk_.size());
+        pos_ = 0;
+        if (size_ == 0) break;
+      }
+      const char c = chunk_[pos_++];
+      if (std::isspace(static_cast<unsigned char>(c))) continue;
+      if (!std::isxdigit(static_cast<unsigned char>(c))) {
+        throw Error(path_ + ": hex data has '" +
+                    std::string(1, std::isprint(static_cast<unsigned char>(c)) ? c : '?') + "' after " +
+                    std::to_string(position_ + done) + " bytes, not a hex digit");
+      }
+      const int digit = std::isdigit(static_cast<unsigned char>(c)) ? c - '0' : std::tolower(c) - 'a' + 10;
+      if (high < 0) {
+        high = digit;
+      } else {
+        out[done++] = static_cast<unsigned char>(high * 16 + digit);
+        high = -1;
+      }
+    }
+    if (high >= 0) throw Error(path_ + ": hex data ends in the middle of a byte");
+    position_ += done;
+    return done;
+  }
+
+ private:
+  FileByteSource text_;
+  std::vector<char> chunk_ = std::vector<char>(std::size_t(64) << 10);
+  std::size_t pos_ = 0, size_ = 0;
+};
+
+/// Decodes `k` binary samples from `source` in slabs and hands them to the sink as stream samples from `n`.
+/// `before` bytes of the file's data were consumed before them, `fileBytes` is its declared size (messages).
+void decodeBinary(ByteSource& source, const NrrdHeader& h, std::uint64_t n, std::uint64_t k,
+                  const FrameSink& sink, std::uint64_t before, std::uint64_t fileBytes) {
+  const std::size_t size = sampleSize(h.type);
+  const std::size_t perSlab = std::max<std::size_t>(1, (std::size_t(4) << 20) / size);
+  std::vector<unsigned char> slab(static_cast<std::size_t>(std::min<std::uint64_t>(k, perSlab)) * size);
+  std::vector<double> values(slab.size() / size);
+  for (std::uint64_t done = 0; done < k;) {
+    const std::size_t count = static_cast<std::size_t>(std::min<std::uint64_t>(k - done, perSlab));
+    const std::size_t got = source.read(slab.data(), count * size);
+    if (got < count * size) {
+      const std::uint64_t have = before + done * size + got;
+      throw Error(source.path() + ": data ends after " + std::to_string(have) + " of " +
+                  std::to_string(fileBytes) + " bytes (" + std::to_string(fileBytes - have) +
+                  " bytes short)");
+    }
+    decodeSamples(slab.data(), count, h.type, h.endian, values.data());
+    sink.put(n + done, values.data(), count);
+    done += count;
+  }
+}
+
+/// Reads the ascii numbers [0, end) of one data file, handing those from `from` on to the sink as stream
+/// samples from `n + from`; with end == total, checks that no number follows.
+void decodeAscii(ByteSource& source, std::uint64_t n, std::uint64_t from, std::uint64_t end,
+                 std::uint64_t total, const FrameSink& sink) {
+  AsciiNumbers numbers(source);
+  std::vector<double> block;
+  block.reserve(std::size_t(1) << 16);
+  std::uint64_t flushed = from;
+  for (std::uint64_t i = 0; i < end; ++i) {
+    double v = 0;
+    if (!numbers.next(v)) {
+      throw Error(source.path() + ": ascii data ends after " + std::to_string(i) + " of " +
+                  std::to_string(total) + " values");
+    }
+    if (i < from) continue;
+    block.push_back(v);
+    if (block.size() == block.capacity()) {
+      sink.put(n + flushed, block.data(), block.size());
+      flushed += block.size();
+      block.clear();
+    }
+  }
+  sink.put(n + flushed, block.data(), block.size());
+  double extra = 0;
+  if (end == total && numbers.next(extra)) {
+    throw Error(source.path() + ": ascii data has more than the " + std::to_string(total) +
+                " values declared");
+  }
+}
+
+/// One data file of a NRRD volume: the header, its path, where its samples sit in the data stream.
+struct DataFile {
+  const std::string& header;  ///< the NRRD file's path
+  const NrrdHeader& h;
+  std::string path;
+  std::uint64_t first;  ///< stream index of its first sample
+  std::uint64_t count;  ///< samples it holds
+};
+
+/// The byte offset of the data in a raw data file, after checking the file's size.
+std::uint64_t rawOffset(const DataFile& f, std::uint64_t start) {
+  const std::uint64_t fileBytes = fileSizeOf(f.path);
+  const std::uint64_t dataBytes = f.count * sampleSize(f.h.type);
+  if (f.h.byteSkip == -1) {
+    if (fileBytes < start + dataBytes) {
+      throw Error(f.path + ": data file is " + std::to_string(start + dataBytes - fileBytes) +
+                  " bytes short of the " + std::to_string(dataBytes) + " bytes declared by " + f.header);
+    }
+    return fileBytes - dataBytes;
+  }
+  const std::uint64_t offset = start + static_cast<std::uint64_t>(f.h.byteSkip);
+  if (fileBytes != offset + dataBytes) {
+    std::string what = fileBytes < offset + dataBytes
+                           ? std::to_string(offset + dataBytes - fileBytes) + " bytes short"
+                           : std::to_string(fileBytes - offset - dataBytes) + " bytes longer than declared";
+    throw Error(f.path + ": data is " + what + " (" + std::to_string(f.count) + " " + toString(f.h.type) +
+                " samples = " + std::to_string(dataBytes) + " bytes expected after byte " +
+                std::to_string(offset) + ", file has " + std::to_string(fileBytes) + ")");
+  }
+  return offset;
+}
+
+/// Reads the samples of one data file that the sink wants.
+void readDataFile(const DataFile& f, const FrameSink& sink) {
+  const NrrdHeader& h = f.h;
+  const auto [lo, hi] = sink.wanted(f.first, f.first + f.count);
+  const std::size_t size = sampleSize(h.type);
+  const std::uint64_t start = skipLines(f.path, h.attached ? h.headerBytes : 0, h.lineSkip);
+  if (h.encoding == NrrdEncoding::Raw) {
+    const std::uint64_t offset = rawOffset(f, start);
+    if (lo >= hi) return;
+    FileByteSource source(f.path, offset + (lo - f.first) * size);
+    decodeBinary(source, h, lo, hi - lo, sink, (lo - f.first) * size, f.count * size);
+    return;
+  }
+  if (lo >= hi) return;
+  if (h.encoding == NrrdEncoding::Ascii) {
+    // Every value takes at least one character and one separator: reject files too small before reading.
+    const std::uint64_t bytes = fileSizeOf(f.path), available = bytes > start ? bytes - start : 0;
+    if (available + 1 < 2 * f.count) {
+      throw Error(f.path + ": " + std::to_string(available) + " bytes of text cannot hold the " +
+                  std::to_string(f.count) + " values declared by " + f.header);
+    }
+    FileByteSource text(f.path, start);
+    decodeAscii(text, f.first, lo - f.first, hi - f.first, f.count, sink);
+    return;
+  }
+  std::unique_ptr<ByteSource> source;
+  if (h.encoding == NrrdEncoding::Gzip) source = std::make_unique<GzipByteSource>(f.path, start);
+  if (h.encoding == NrrdEncoding::Bzip2) source = std::make_unique<Bzip2ByteSource>(f.path, start);
+  if (h.encoding == NrrdEncoding::Hex) source = std::make_unique<HexByteSource>(f.path, start);
+  const std::uint64_t skip = static_cast<std::uint64_t>(h.byteSkip);
+  if (source->skip(skip) != skip) {
+    throw Error(f.path + ": data ends within the " + std::to_string(skip) + " bytes of byte skip");
+  }
+  const std::uint64_t before = (lo - f.first) * size;
+  if (source->skip(before) != before) {
+    throw Error(f.path + ": data ends before byte " + std::to_string(before) + " of " +
+                std::to_string(f.count * size));
+  }
+  decodeBinary(*source, h, lo, hi - lo, sink, before, f.count * size);
+  if (hi == f.first + f.count)
+    source->expectEnd(h.encoding == NrrdEncoding::Hex ? "hex data" : "compressed data");
+}
+
+/// The frame to read: options.frame, checked against the file's frames.
+std::uint64_t chooseFrame(const std::string& path, const NrrdHeader& h, int frame) {
+  const std::string holds =
+      "the file holds " + std::to_string(h.frames) + (h.frames == 1 ? " frame" : " frames");
+  if (frame < 0 && h.frames > 1) {
+    throw Error(path + ": a 4-D volume: " + holds + "; choose one of 0.." + std::to_string(h.frames - 1));
+  }
+  if (frame >= h.frames) {
+    throw Error(path + ": frame " + std::to_string(frame) + " is out of range: " + holds +
+                (h.frames > 1 ? " (0.." + std::to_string(h.frames - 1) + ")" : ""));
+  }
+  return static_cast<std::uint64_t>(std::max(frame, 0));
 }
 
 }  // namespace
 
-std::string nrrdDataPath(const std::string& path, const NrrdHeader& h) {
-  if (h.attached) return path;
-  std::string dataPath = h.dataFile;
+std::vector<std::string> nrrdDataPaths(const std::string& path, const NrrdHeader& h) {
+  if (h.attached) return {path};
+  std::vector<std::string> paths;
   const std::size_t slash = path.find_last_of('/');
-  if (dataPath[0] != '/' && slash != std::string::npos) dataPath = path.substr(0, slash + 1) + dataPath;
-  return dataPath;
+  for (const std::string& name : h.dataFiles) {
+    const bool relative = name[0] != '/' && slash != std::string::npos;
+    paths.push_back(relative ? path.substr(0, slash + 1) + name : name);
+  }
+  return paths;
 }
 
-DenseGrid readNrrd(const std::string& path, std::size_t maxBytes) {
-  NrrdHeader h = readNrrdHeader(path);
+DenseGrid readNrrd(const std::string& path, const NrrdReadOptions& options) {
+  const NrrdHeader h = readNrrdHeader(path);
+  const std::uint64_t frame = chooseFrame(path, h, options.frame);
   const std::size_t size = sampleSize(h.type);
-  const std::int64_t count = checkVolumeDims(path, h.dims, size, maxBytes);
-  const std::uint64_t dataBytes = static_cast<std::uint64_t>(count) * size;
-
-  const std::string dataPath = nrrdDataPath(path, h);
-  std::uint64_t start = 0;
-  if (h.attached) {
-    start = h.headerBytes;
-  } else {
+  const auto count = static_cast<std::uint64_t>(checkVolumeDims(path, h.dims, size, options.maxBytes));
+  const auto frames = static_cast<std::uint64_t>(h.frames);
+  if (frames > std::numeric_limits<std::uint64_t>::max() / size / count) {
+    throw Error(path + ": " + std::to_string(frames) + " frames of " + std::to_string(count) +
+                " samples overflow 64 bits");
+  }
+  const std::vector<std::string> paths = nrrdDataPaths(path, h);
+  const std::uint64_t total = count * frames;
+  if (total % paths.size() != 0) {
+    throw Error(path + ": " + std::to_string(paths.size()) + " data files cannot hold equal parts of " +
+                std::to_string(total) + " samples");
+  }
+  for (const std::string& p : paths) {
     try {
-      fileSizeOf(dataPath);
+      fileSizeOf(p);
     } catch (const Error& e) {
       throw Error(path + ": data file " + e.what());
     }
   }
-  start = skipLines(dataPath, start, h.lineSkip);
-  const std::uint64_t fileBytes = fileSizeOf(dataPath);
-
   DenseGrid grid;
-  std::unique_ptr<ByteSource> source;
-  if (h.encoding == NrrdEncoding::Ascii) {
-    // Every value takes at least one character and one separator: reject files too small before allocating.
-    const std::uint64_t available = fileBytes > start ? fileBytes - start : 0;
-    if (available + 1 < 2 * static_cast<std::uint64_t>(count)) {
-      throw Error(dataPath + ": " + std::to_string(available) + " bytes of text cannot hold the " +
-                  std::to_string(count) + " values declared by " + path);
-    }
-    grid.allocate(h.dims, maxBytes);
-    FileByteSource text(dataPath, start);
-    readAsciiInto(text, grid);
-  } else if (h.encoding == NrrdEncoding::Raw) {
-    std::uint64_t offset = start + static_cast<std::uint64_t>(std::max<std::int64_t>(h.byteSkip, 0));
-    if (h.byteSkip == -1) {
-      if (fileBytes < start + dataBytes) {
-        throw Error(dataPath + ": data file is " + std::to_string(start + dataBytes - fileBytes) +
-                    " bytes short of the " + std::to_string(dataBytes) + " bytes declared by " + path);
-      }
-      offset = fileBytes - dataBytes;
-    } else if (fileBytes != offset + dataBytes) {
-      std::string what = fileBytes < offset + dataBytes
-                             ? std::to_string(offset + dataBytes - fileBytes) + " bytes short"
-                             : std::to_string(fileBytes - offset - dataBytes) + " bytes longer than declared";
-      throw Error(dataPath + ": data is " + what + " (" + std::to_string(h.dims[0]) + "x" +
-                  std::to_string(h.dims[1]) + "x" + std::to_string(h.dims[2]) + " " + toString(h.type) +
-                  " = " + std::to_string(dataBytes) + " bytes expected after byte " + std::to_string(offset) +
-                  ", file has " + std::to_string(fileBytes) + ")");
-    }
-    grid.allocate(h.dims, maxBytes);
-    source = std::make_unique<FileByteSource>(dataPath, offset);
-  } else {
-    grid.allocate(h.dims, maxBytes);
-    source = std::make_unique<GzipByteSource>(dataPath, start);
-    std::uint64_t skip = static_cast<std::uint64_t>(h.byteSkip);
-    if (source->skip(skip) != skip) {
-      throw Error(dataPath + ": compressed data ends within the " + std::to_string(skip) +
-                  " bytes of byte skip");
-    }
-  }
-  if (source) readSamplesInto(*source, h.type, h.endian, grid);
-  if (h.encoding == NrrdEncoding::Gzip) source->expectEnd("compressed data");
+  grid.allocate(h.dims, options.maxBytes);
+  const FrameSink sink{grid, count, frames, h.framesFirst, frame};
+  const std::uint64_t perFile = total / paths.size();
+  for (std::size_t i = 0; i < paths.size(); ++i)
+    readDataFile({path, h, paths[i], i * perFile, perFile}, sink);
   grid.geometry.spacing = h.spacing;
+  grid.geometry.direction = h.direction;
   grid.geometry.origin = h.origin;
+  grid.geometry.space = h.space;
   grid.description = describeDenseFile(path, "NRRD", h.type, h.dims);
+  if (h.frames > 1) grid.description += " frame " + std::to_string(frame) + " of " + std::to_string(h.frames);
   return grid;
 }
 

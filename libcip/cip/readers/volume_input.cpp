@@ -1,5 +1,6 @@
 #include "cip/readers/volume_input.h"
 
+#include <bzlib.h>
 #include <sys/stat.h>
 #include <zlib.h>
 
@@ -199,6 +200,116 @@ std::size_t GzipByteSource::read(void* buffer, std::size_t n) {
     }
     std::string reason = zs->msg ? zs->msg : "zlib error " + std::to_string(ret);
     throw Error(path_ + ": corrupt compressed data: " + reason);
+  }
+  position_ += done;
+  return done;
+}
+
+namespace {
+
+bz_stream* newBzip2Stream(const std::string& path) {
+  auto* bz = new bz_stream{};
+  if (BZ2_bzDecompressInit(bz, 0, 0) != BZ_OK) {
+    delete bz;
+    throw Error(path + ": cannot initialise the bzip2 decompressor");
+  }
+  return bz;
+}
+
+const char* bzip2Reason(int ret) {
+  switch (ret) {
+    case BZ_DATA_ERROR:
+      return "data integrity error";
+    case BZ_DATA_ERROR_MAGIC:
+      return "not bzip2 data (bad magic)";
+    case BZ_MEM_ERROR:
+      return "out of memory";
+    default:
+      return "decompressor error";
+  }
+}
+
+}  // namespace
+
+Bzip2ByteSource::Bzip2ByteSource(const std::string& path, std::uint64_t offset) : ByteSource(path) {
+  file_ = openAt(path, offset);
+  try {
+    stream_ = newBzip2Stream(path);
+  } catch (...) {
+    std::fclose(file_);
+    throw;
+  }
+  input_.resize(kInputChunk);
+  auto* bz = static_cast<bz_stream*>(stream_);
+  bz->next_in = input_.data();
+  bz->avail_in = 0;
+}
+
+Bzip2ByteSource::~Bzip2ByteSource() {
+  auto* bz = static_cast<bz_stream*>(stream_);
+  BZ2_bzDecompressEnd(bz);
+  delete bz;
+  if (file_) std::fclose(file_);
+}
+
+bool Bzip2ByteSource::refill() {
+  auto* bz = static_cast<bz_stream*>(stream_);
+  if (inputEnd_) return false;
+  std::size_t keep = bz->avail_in;
+  if (keep > 0 && bz->next_in != input_.data()) std::memmove(input_.data(), bz->next_in, keep);
+  std::size_t got = std::fread(input_.data() + keep, 1, input_.size() - keep, file_);
+  if (got < input_.size() - keep) {
+    if (std::ferror(file_)) throw Error(path_ + ": read error: " + std::strerror(errno));
+    inputEnd_ = true;
+  }
+  bz->next_in = input_.data();
+  bz->avail_in = static_cast<unsigned>(keep + got);
+  return got > 0;
+}
+
+void Bzip2ByteSource::restart() {
+  auto* old = static_cast<bz_stream*>(stream_);
+  char* next = old->next_in;
+  unsigned avail = old->avail_in;
+  BZ2_bzDecompressEnd(old);
+  *old = bz_stream{};
+  if (BZ2_bzDecompressInit(old, 0, 0) != BZ_OK)
+    throw Error(path_ + ": cannot initialise the bzip2 decompressor");
+  old->next_in = next;
+  old->avail_in = avail;
+}
+
+std::size_t Bzip2ByteSource::read(void* buffer, std::size_t n) {
+  auto* bz = static_cast<bz_stream*>(stream_);
+  auto* out = static_cast<char*>(buffer);
+  std::size_t done = 0;
+  while (done < n && !streamEnd_) {
+    if (bz->avail_in == 0) refill();
+    std::size_t want = std::min<std::size_t>(n - done, std::size_t(1) << 30);
+    bz->next_out = out + done;
+    bz->avail_out = static_cast<unsigned>(want);
+    unsigned inBefore = bz->avail_in;
+    int ret = BZ2_bzDecompress(bz);
+    std::size_t produced = want - bz->avail_out;
+    done += produced;
+    if (ret == BZ_STREAM_END) {
+      // Another bzip2 stream may follow (parallel compressors); anything else after the stream is ignored.
+      if (bz->avail_in < 3) refill();
+      if (bz->avail_in >= 3 && std::memcmp(bz->next_in, "BZh", 3) == 0) {
+        restart();
+      } else {
+        streamEnd_ = true;
+      }
+      continue;
+    }
+    if (ret == BZ_OK) {
+      if (produced == 0 && bz->avail_in == inBefore && !refill()) {
+        throw Error(path_ + ": compressed data is truncated (ends after " + std::to_string(position_ + done) +
+                    " decompressed bytes)");
+      }
+      continue;
+    }
+    throw Error(path_ + ": corrupt compressed data: bzip2 " + bzip2Reason(ret));
   }
   position_ += done;
   return done;

@@ -1,6 +1,7 @@
 /// @file volume_input.h
 /// @brief Plumbing shared by the volume readers: files opened with clear errors, sequential byte sources over
-/// plain or gzip/zlib-compressed data, checked volume sizes, and streaming sample decoding into a DenseGrid.
+/// plain, gzip/zlib- or bzip2-compressed data, checked volume sizes, and streaming sample decoding into a
+/// DenseGrid.
 ///
 /// Samples are read in slabs of a few MiB and decoded straight into the grid's double values, so a reader
 /// never holds a second full copy of the volume. Compressed data is inflated through a fixed-size buffer;
@@ -84,6 +85,24 @@ class GzipByteSource : public ByteSource {
   std::FILE* file_ = nullptr;
   void* stream_ = nullptr;  ///< z_stream, kept opaque so zlib stays out of this header
   std::vector<unsigned char> input_;
+  bool inputEnd_ = false;
+  bool streamEnd_ = false;
+};
+
+/// Decompressed bytes of bzip2 data stored in a file from a given offset. Concatenated bzip2 streams (as
+/// written by parallel bzip2 tools) are read as one. Corrupt or truncated data throws cip::Error.
+class Bzip2ByteSource : public ByteSource {
+ public:
+  Bzip2ByteSource(const std::string& path, std::uint64_t offset);
+  ~Bzip2ByteSource() override;
+  std::size_t read(void* buffer, std::size_t n) override;
+
+ private:
+  bool refill();
+  void restart();  ///< a fresh decompressor for the next concatenated stream
+  std::FILE* file_ = nullptr;
+  void* stream_ = nullptr;  ///< bz_stream, kept opaque so bzlib stays out of this header
+  std::vector<char> input_;
   bool inputEnd_ = false;
   bool streamEnd_ = false;
 };

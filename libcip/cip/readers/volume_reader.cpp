@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "cip/core/error.h"
+#include "cip/readers/dicom_reader.h"
 #include "cip/readers/metaimage_reader.h"
 #include "cip/readers/nifti_reader.h"
 #include "cip/readers/nrrd_reader.h"
@@ -26,6 +27,8 @@ const char* toString(VolumeFormat format) {
       return "VDB";
     case VolumeFormat::MetaImage:
       return "MetaImage";
+    case VolumeFormat::Dicom:
+      return "DICOM";
   }
   return "unknown";
 }
@@ -36,19 +39,27 @@ VolumeFormat volumeFormatOf(const std::string& path) {
     if (endsWithNoCase(path, suffix)) return VolumeFormat::Nifti;
   if (endsWithNoCase(path, ".mha") || endsWithNoCase(path, ".mhd")) return VolumeFormat::MetaImage;
   if (endsWithNoCase(path, ".vdb")) return VolumeFormat::Vdb;
+  std::error_code ec;
+  if (endsWithNoCase(path, ".dcm") || std::filesystem::is_directory(path, ec)) return VolumeFormat::Dicom;
   return VolumeFormat::Raw;
 }
 
 std::uint64_t volumeFileBytes(const std::string& path) {
   std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    std::uint64_t bytes = 0;
+    for (const auto& entry : std::filesystem::directory_iterator(path, ec)) {
+      if (entry.is_regular_file(ec)) bytes += entry.file_size(ec);
+    }
+    return bytes;
+  }
   std::uint64_t bytes = std::filesystem::file_size(path, ec);
   if (ec) return 0;
   std::vector<std::string> dataFiles;
   try {
     switch (volumeFormatOf(path)) {
       case VolumeFormat::Nrrd:
-        if (const NrrdHeader h = readNrrdHeader(path); !h.attached)
-          dataFiles.push_back(nrrdDataPath(path, h));
+        if (const NrrdHeader h = readNrrdHeader(path); !h.attached) dataFiles = nrrdDataPaths(path, h);
         break;
       case VolumeFormat::Nifti: {
         const std::string header = niftiHeaderPath(path);
@@ -86,7 +97,7 @@ bool isLoneImg(const std::string& path) {
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options) {
   switch (volumeFormatOf(path)) {
     case VolumeFormat::Nrrd:
-      return fromDense(readNrrd(path, options.maxBytes));
+      return fromDense(readNrrd(path, {options.maxBytes, options.frame}));
     case VolumeFormat::Nifti:
       if (!(options.raw && isLoneImg(path)))
         return fromDense(readNifti(path, options.maxBytes, options.frame));
@@ -101,12 +112,18 @@ SparseVolume readVolume(const std::string& path, const VolumeReadOptions& option
       vdb.maxBytes = options.maxBytes;
       return readVdb(path, vdb);
     }
+    case VolumeFormat::Dicom:
+      if (options.frame > 0)
+        throw Error(path + ": frame " + std::to_string(options.frame) +
+                    " is out of range: a DICOM series holds 1 frame");
+      return fromDense(readDicom(path, options.maxBytes));
     case VolumeFormat::Raw:
       break;
   }
   if (!options.raw) {
     throw Error(path +
-                ": not a .nrrd, .nhdr, .nii, .nii.gz, .hdr, .img, .mha, .mhd or .vdb file; reading it as raw "
+                ": not a .nrrd, .nhdr, .nii, .nii.gz, .hdr, .img, .mha, .mhd, .vdb or .dcm file or a DICOM folder; "
+                "reading it as raw "
                 "data needs its dims "
                 "and sample type");
   }

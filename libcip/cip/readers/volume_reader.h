@@ -4,11 +4,11 @@
 /// volume.description)).
 ///
 /// By name (case-insensitive): .nrrd/.nhdr -> NRRD, .nii/.nii.gz/.hdr/.img (and .hdr.gz/.img.gz) -> NIfTI-1
-/// or NIfTI-2, .mha/.mhd -> MetaImage, .vdb -> OpenVDB (sparse bricks), anything else -> raw, which needs a
-/// RawFormat (dims, sample type, ...). A known extension always wins over a RawFormat, except for a .img
-/// without a .hdr beside it, which a RawFormat reads as raw data. Dense formats come back as one brick owning
-/// every cell (fromDense), placed as the file says (origin, spacing, direction, world space:
-/// docs/volumes.md).
+/// or NIfTI-2, .mha/.mhd -> MetaImage, .vdb -> OpenVDB (sparse bricks), a folder or .dcm -> DICOM series
+/// (dicom_reader.h), anything else -> raw, which needs a RawFormat (dims, sample type, ...). A known extension
+/// always wins over a RawFormat, except for a .img without a .hdr beside it, which a RawFormat reads as raw
+/// data. Dense formats come back as one brick owning every cell (fromDense), placed as the file says (origin,
+/// spacing, direction, world space: docs/volumes.md).
 #pragma once
 #include <optional>
 #include <string>
@@ -18,10 +18,10 @@
 
 namespace cip {
 
-enum class VolumeFormat : std::uint8_t { Raw, Nrrd, Nifti, Vdb, MetaImage };
+enum class VolumeFormat : std::uint8_t { Raw, Nrrd, Nifti, Vdb, MetaImage, Dicom };
 const char* toString(VolumeFormat format);
 
-/// The format implied by the file name (Raw for unknown extensions).
+/// The format implied by the file name (Raw for unknown extensions; DICOM for an existing folder).
 VolumeFormat volumeFormatOf(const std::string& path);
 
 struct VolumeReadOptions {
@@ -38,8 +38,8 @@ struct VolumeReadOptions {
 SparseVolume readVolume(const std::string& path, const VolumeReadOptions& options = {});
 
 /// Bytes on disk of the volume file `path`: the file, plus for an NRRD header with detached data, a NIfTI
-/// .hdr/.img pair or a MetaImage .mhd the data files it names (a header that cannot be read, or a missing
-/// data file, counts as nothing more); 0 when `path` is no file.
+/// .hdr/.img pair or a MetaImage .mhd the data files it names, or for a folder (DICOM series) its files (a
+/// header that cannot be read, or a missing data file, counts as nothing more); 0 when `path` is no file.
 std::uint64_t volumeFileBytes(const std::string& path);
 
 /// Short description for statistics, e.g. "tooth.nhdr (NRRD uint8 103x94x161), spacing 1 1 1" (followed by
