@@ -21,7 +21,7 @@ import tempfile
 
 STAGES = ["core", "topology", "volume", "readers", "reference", "patch", "model", "mesh", "meshio",
           "measure"]
-MAX_FILES = 16
+MAX_FILES = 20  # readers/ holds a header and source per file format: nine formats and their plumbing
 MAX_LINES = 150
 INCLUDE = re.compile(r'^\s*#\s*include\s*[<"]([^>"]+)[>"]', re.M)
 FORBIDDEN_IN_CORE = ("embree", "OpenImageIO", "OpenEXR", "png.h")
