@@ -472,24 +472,16 @@ std::vector<Piece> dataPieces(const std::string& path, const MetaImageHeader& h,
 
 DenseGrid readMetaImageFile(const std::string& path, std::size_t maxBytes, int frame) {
   const MetaImageHeader h = readMetaImageHeader(path);
-  const std::int64_t chosen = checkVolumeFrame(path, h.frames, frame);
-  const std::size_t size = sampleSize(h.type);
-  const std::int64_t count = checkVolumeDims(path, h.geometry.dims, size, maxBytes);
-  const std::uint64_t frameBytes = static_cast<std::uint64_t>(count) * size;
-  if (static_cast<std::uint64_t>(h.frames) > (std::uint64_t(1) << 62) / frameBytes) {
-    throw Error(path + ": " + std::to_string(h.frames) + " frames of " + std::to_string(frameBytes) +
-                " bytes do not fit 64 bits");
-  }
-  const std::uint64_t allBytes = frameBytes * static_cast<std::uint64_t>(h.frames);
-  PieceSource source(path, dataPieces(path, h, allBytes));
-  source.seek(static_cast<std::uint64_t>(chosen) * frameBytes);
+  const FrameSpan span = checkFrameSpan(path, h.geometry.dims, sampleSize(h.type), h.frames, frame, maxBytes);
+  PieceSource source(path, dataPieces(path, h, span.allBytes));
+  source.seek(static_cast<std::uint64_t>(span.chosen) * span.frameBytes);
   DenseGrid grid;
   grid.allocate(h.geometry.dims, maxBytes);
   readSamplesInto(source, h.type, h.endian, grid);
   grid.geometry = h.geometry;
   grid.description = describeDenseFile(path, "MetaImage", h.type, h.geometry.dims);
   if (h.frames > 1)
-    grid.description += ", frame " + std::to_string(chosen) + " of " + std::to_string(h.frames);
+    grid.description += ", frame " + std::to_string(span.chosen) + " of " + std::to_string(h.frames);
   return grid;
 }
 

@@ -443,15 +443,9 @@ DenseGrid readNiftiFile(const std::string& path, std::size_t maxBytes, int frame
   const std::string headerPath = niftiHeaderPath(path);
   NiftiHeader h = readNiftiHeader(headerPath);
   const std::string dataPath = niftiDataPath(headerPath, h);
-  const std::int64_t chosen = checkVolumeFrame(path, h.frames, frame);
-  const std::size_t size = sampleSize(h.type);
-  const std::int64_t count = checkVolumeDims(path, h.geometry.dims, size, maxBytes);
-  const std::uint64_t frameBytes = static_cast<std::uint64_t>(count) * size;
-  if (static_cast<std::uint64_t>(h.frames) > (std::uint64_t(1) << 62) / frameBytes) {
-    throw Error(path + ": " + std::to_string(h.frames) + " frames of " + std::to_string(frameBytes) +
-                " bytes do not fit 64 bits");
-  }
-  const std::uint64_t allBytes = frameBytes * static_cast<std::uint64_t>(h.frames);
+  const FrameSpan span = checkFrameSpan(path, h.geometry.dims, sampleSize(h.type), h.frames, frame, maxBytes);
+  const std::int64_t chosen = span.chosen;
+  const std::uint64_t frameBytes = span.frameBytes, allBytes = span.allBytes;
 
   const bool gz = isGzip(dataPath);
   std::unique_ptr<ByteSource> source = gz ? openCompressedFrame(dataPath, h, frameBytes, chosen)

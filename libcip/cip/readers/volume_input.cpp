@@ -76,6 +76,20 @@ std::int64_t checkVolumeFrame(const std::string& path, std::int64_t frames, int 
   return frame;
 }
 
+FrameSpan checkFrameSpan(const std::string& path, const std::array<std::int64_t, 3>& dims,
+                         std::size_t bytesPerSample, std::int64_t frames, int frame, std::size_t maxBytes) {
+  FrameSpan span;
+  span.chosen = checkVolumeFrame(path, frames, frame);
+  const std::int64_t count = checkVolumeDims(path, dims, bytesPerSample, maxBytes);
+  span.frameBytes = static_cast<std::uint64_t>(count) * bytesPerSample;
+  if (static_cast<std::uint64_t>(frames) > (std::uint64_t(1) << 62) / span.frameBytes) {
+    throw Error(path + ": " + std::to_string(frames) + " frames of " + std::to_string(span.frameBytes) +
+                " bytes do not fit 64 bits");
+  }
+  span.allBytes = span.frameBytes * static_cast<std::uint64_t>(frames);
+  return span;
+}
+
 DenseGrid readPrefixingErrors(const std::string& path, const std::function<DenseGrid()>& read) {
   try {
     return read();

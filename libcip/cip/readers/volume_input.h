@@ -117,6 +117,17 @@ std::int64_t checkVolumeDims(const std::string& path, const std::array<std::int6
 /// 0 when the file holds one frame. Errors are "<path>: ..." and name the frame count.
 std::int64_t checkVolumeFrame(const std::string& path, std::int64_t frames, int frame);
 
+/// Where one frame of a series lies in its stored data, checked before anything is allocated.
+struct FrameSpan {
+  std::int64_t chosen = 0;       ///< the frame to read (checkVolumeFrame)
+  std::uint64_t frameBytes = 0;  ///< stored bytes of one frame
+  std::uint64_t allBytes = 0;    ///< stored bytes of every frame
+};
+/// checkVolumeFrame and checkVolumeDims for a series of `frames` frames of `dims` samples of
+/// `bytesPerSample`, and the byte counts; throws "<path>: ..." when the frames' bytes do not fit 64 bits.
+FrameSpan checkFrameSpan(const std::string& path, const std::array<std::int64_t, 3>& dims,
+                         std::size_t bytesPerSample, std::int64_t frames, int frame, std::size_t maxBytes);
+
 /// Runs `read`; a cip::Error whose message does not start with "<path>:" (one about a data file beside the
 /// header, say) is thrown again with "<path>: " in front, so that every message starts with the path given.
 DenseGrid readPrefixingErrors(const std::string& path, const std::function<DenseGrid()>& read);
