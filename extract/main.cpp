@@ -344,9 +344,10 @@ int main(int argc, char** argv) {
       ->delimiter(',');
   app.add_option("--offset", opt.offset,
                  "raw input: bytes to skip before the first sample (default 0), e.g. --offset 352");
-  app.add_option("--frame", opt.frame,
-                 "4-D NIfTI or MetaImage input (a series of volumes): the frame to read, counted from 0; "
-                 "required when the file holds more than one, e.g. --frame 3")
+  app.add_option(
+         "--frame", opt.frame,
+         "4-D NIfTI, NRRD or MetaImage input (a series of volumes): the frame to read, counted from 0; "
+         "required when the file holds more than one, e.g. --frame 3")
       ->check(CLI::Range(0, std::numeric_limits<int>::max()));
   app.add_option("--grid", opt.grid,
                  "OpenVDB input: grid name (default: the first float or double grid), e.g. --grid density");
