@@ -15,6 +15,7 @@
 #include <limits>
 #include <map>
 
+#include "cip/core/world_transform.h"
 #include "cip/model/model_builder.h"
 #include "cip/model/model_file.h"
 #include "cip/readers/volume_reader.h"
@@ -360,7 +361,33 @@ TEST(VdbReader, GridsWithoutActiveVoxelsOrWithRotations) {
   o.gridName = "empty";
   expectError([&] { readVdb(path, o); }, {path, "'empty' has no active voxels"});
   o.gridName = "rotated";
-  expectError([&] { readVdb(path, o); }, {path, "rotated or sheared"});
+  {
+    // A rotated grid is placed as its transform says: every grid point sits where OpenVDB puts it, the
+    // samples stay in index order.
+    const SparseVolume r = readVdb(path, o);
+    EXPECT_FALSE(r.geometry.axisAligned());
+    EXPECT_NEAR(r.geometry.spacing[0], 0.5, 1e-12);
+    const WorldTransform w = WorldTransform::of(r.geometry);
+    const openvdb::Coord lo(0, 1, 2);  // the active voxel (1,2,3) and one point of margin
+    for (const openvdb::Coord ijk :
+         {openvdb::Coord(0, 0, 0), openvdb::Coord(1, 0, 0), openvdb::Coord(0, 1, 0), openvdb::Coord(0, 0, 1),
+          openvdb::Coord(2, 1, 2)}) {
+      const openvdb::Vec3d p = xf->indexToWorld(lo + ijk);
+      const Vec3 q = w.point(r.geometry.indexToWorld(Vec3(ijk.x(), ijk.y(), ijk.z())));
+      EXPECT_LT((q - Vec3(p[0], p[1], p[2])).norm(), 1e-12);
+    }
+    EXPECT_EQ(r.grids[0].at(1, 1, 1), 1.0);
+  }
+  // A mirrored axis is a flip of the direction (OpenVDB itself refuses to make a singular transform).
+  auto mirrored = rotated->deepCopy();
+  mirrored->setTransform(openvdb::math::Transform::createLinearTransform(
+      openvdb::math::Mat4d(-0.5, 0., 0., 0., 0., 0.5, 0., 0., 0., 0., 0.5, 0., 0., 0., 0., 1.)));
+  mirrored->setName("mirrored");
+  openvdb::io::File(dir.file("m.vdb")).write(openvdb::GridCPtrVec{mirrored});
+  o.gridName = "mirrored";
+  const SparseVolume mv = readVdb(dir.file("m.vdb"), o);
+  EXPECT_EQ(mv.geometry.direction, Mat3(Vec3(-1, 1, 1).asDiagonal()));
+  EXPECT_EQ(mv.geometry.spacing, Vec3(0.5, 0.5, 0.5));
   o.gridName = "velocity";
   expectError([&] { readVdb(path, o); }, {path, "vec3s", "only float and double"});
   o.gridName = "dbl";

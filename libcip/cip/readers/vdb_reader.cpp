@@ -328,27 +328,19 @@ class GridSelector : public openvdb::io::Archive {
 
 using BrickKey = std::array<std::int64_t, 3>;
 
-/// The voxel size of a grid's transform, which must be linear, axis-aligned and with positive scales.
-Vec3 axisAlignedSpacing(const std::string& path, const std::string& name,
-                        const openvdb::math::Transform& xf) {
+/// The spacing and direction of a grid's transform, which must be linear (any rotation, flip or shear):
+/// OpenVDB multiplies row vectors, so row a of its matrix is the world step of one index along axis a.
+GridGeometry vdbAxes(const std::string& path, const std::string& name, const openvdb::math::Transform& xf) {
   if (!xf.isLinear())
     throw Error(path + ": grid '" + name + "' has a non-linear (frustum) transform; not supported");
   const openvdb::math::Mat4d m = xf.baseMap()->getAffineMap()->getMat4();
-  Vec3 spacing;
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) {
-      if (i != j && std::abs(m[i][j]) > 1e-9 * std::abs(m[i][i])) {
-        throw Error(path + ": grid '" + name +
-                    "' has a rotated or sheared transform; only axis-aligned grids are supported");
-      }
-    }
-    if (!(m[i][i] > 0) || !std::isfinite(m[i][i])) {
-      throw Error(path + ": grid '" + name +
-                  "' has a zero, negative (mirrored) or invalid voxel size on axis " + std::to_string(i));
-    }
-    spacing[i] = m[i][i];
-  }
-  return spacing;
+  Mat3 columns;
+  for (int a = 0; a < 3; ++a)
+    for (int w = 0; w < 3; ++w) columns(w, a) = m[a][w];
+  GridGeometry g;
+  setAxes(g, columns, (path + ": grid '" + name + "' transform").c_str());
+  if (g.axisAligned()) g.direction = Mat3::Identity();  // exactly, for the files that were always read
+  return g;
 }
 
 /// The global grid: the active box plus one point on every side (all cells with an active corner lie
@@ -507,32 +499,41 @@ SparseVolume allocateBricks(const std::set<BrickKey>& keys, const BrickLayout& l
 /// Each brick's samples and world origin from `grid`, in parallel; `lo`: the global grid's lowest VDB
 /// coordinate.
 template <typename GridT>
-void readBricks(const GridT& grid, const std::array<std::int64_t, 3>& lo, SparseVolume& volume) {
+void readBricks(const GridT& grid, const std::array<std::int64_t, 3>& lo, const Vec3& origin,
+                bool axisAligned, SparseVolume& volume) {
   const openvdb::math::Transform& xf = grid.transform();
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, volume.bricks.size()),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      auto acc = grid.getConstAccessor();
-                      for (std::size_t b = r.begin(); b != r.end(); ++b) {
-                        const GridBrick& brick = volume.bricks[b];
-                        DenseGrid& g = volume.grids[b];
-                        const auto& d = g.geometry.dims;
-                        Vec3 start(static_cast<double>(lo[0] + brick.offset[0]),
-                                   static_cast<double>(lo[1] + brick.offset[1]),
-                                   static_cast<double>(lo[2] + brick.offset[2]));
-                        const openvdb::Vec3d w =
-                            xf.indexToWorld(openvdb::Vec3d(start[0], start[1], start[2]));
-                        g.geometry.origin = Vec3(w[0], w[1], w[2]);
-                        std::size_t n = 0;
-                        for (std::int64_t k = 0; k < d[2]; ++k)
-                          for (std::int64_t j = 0; j < d[1]; ++j)
-                            for (std::int64_t i = 0; i < d[0]; ++i) {
-                              openvdb::Coord c(static_cast<openvdb::Int32>(lo[0] + brick.offset[0] + i),
-                                               static_cast<openvdb::Int32>(lo[1] + brick.offset[1] + j),
-                                               static_cast<openvdb::Int32>(lo[2] + brick.offset[2] + k));
-                              g.values[n++] = static_cast<double>(acc.getValue(c));
-                            }
-                      }
-                    });
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, volume.bricks.size()),
+      [&](const tbb::blocked_range<std::size_t>& r) {
+        auto acc = grid.getConstAccessor();
+        for (std::size_t b = r.begin(); b != r.end(); ++b) {
+          const GridBrick& brick = volume.bricks[b];
+          DenseGrid& g = volume.grids[b];
+          const auto& d = g.geometry.dims;
+          Vec3 start(static_cast<double>(lo[0] + brick.offset[0]),
+                     static_cast<double>(lo[1] + brick.offset[1]),
+                     static_cast<double>(lo[2] + brick.offset[2]));
+          // The brick's place in the grid frame: where the transform puts its first
+          // point when the grid is axis-aligned; else (the direction is the whole
+          // volume's) the volume's origin plus its offset times the spacing.
+          const openvdb::Vec3d w = xf.indexToWorld(openvdb::Vec3d(start[0], start[1], start[2]));
+          g.geometry.origin =
+              axisAligned
+                  ? Vec3(w[0], w[1], w[2])
+                  : Vec3(origin + g.geometry.spacing.cwiseProduct(start - Vec3(static_cast<double>(lo[0]),
+                                                                               static_cast<double>(lo[1]),
+                                                                               static_cast<double>(lo[2]))));
+          std::size_t n = 0;
+          for (std::int64_t k = 0; k < d[2]; ++k)
+            for (std::int64_t j = 0; j < d[1]; ++j)
+              for (std::int64_t i = 0; i < d[0]; ++i) {
+                openvdb::Coord c(static_cast<openvdb::Int32>(lo[0] + brick.offset[0] + i),
+                                 static_cast<openvdb::Int32>(lo[1] + brick.offset[1] + j),
+                                 static_cast<openvdb::Int32>(lo[2] + brick.offset[2] + k));
+                g.values[n++] = static_cast<double>(acc.getValue(c));
+              }
+        }
+      });
 }
 
 /// A VDB grid as bricks of dense samples around its active values: the placement checked, the bricks found,
@@ -542,21 +543,22 @@ SparseVolume bricksOf(const std::string& path, const GridT& grid, const VdbReadO
                       const std::string& typeName) {
   const std::string name = grid.getName();
   const openvdb::math::Transform& xf = grid.transform();
-  const Vec3 spacing = axisAlignedSpacing(path, name, xf);
+  const GridGeometry axes = vdbAxes(path, name, xf);
+  const Vec3& spacing = axes.spacing;
   const openvdb::CoordBBox active = grid.evalActiveVoxelBoundingBox();
   if (active.empty()) throw Error(path + ": grid '" + name + "' has no active voxels");
   const GlobalBox global = globalBox(path, name, active);
   const BrickLayout layout(path, global.dims, options);
   const std::set<BrickKey> keys = activeBrickKeys(path, grid, active, global.lo, layout, options.maxBytes);
   SparseVolume volume = allocateBricks(keys, layout, spacing, options.maxBytes);
-  readBricks(grid, global.lo, volume);
-
   const auto& lo = global.lo;
   const openvdb::Vec3d origin = xf.indexToWorld(
       openvdb::Vec3d(static_cast<double>(lo[0]), static_cast<double>(lo[1]), static_cast<double>(lo[2])));
+  readBricks(grid, global.lo, Vec3(origin[0], origin[1], origin[2]), axes.axisAligned(), volume);
   volume.geometry.dims = global.dims;
   volume.geometry.origin = Vec3(origin[0], origin[1], origin[2]);
   volume.geometry.spacing = spacing;
+  volume.geometry.direction = axes.direction;
   volume.isLevelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;
   volume.background = static_cast<double>(grid.background());
   volume.description = baseName(path) + " grid " + name + " (VDB " + typeName + " " +

@@ -3,9 +3,10 @@
 /// densified.
 ///
 /// The global grid spans the active voxels' index bounding box plus one point on every side, so every cell
-/// with an active corner lies inside it; geometry.origin is the world position of the box's lowest point and
-/// spacing is the voxel size per axis. Only axis-aligned linear transforms with positive scales are accepted
-/// (rotations, shears, mirrors and frustum transforms are rejected with a clear error). The global cells are
+/// with an active corner lies inside it; geometry.origin is the world position of the box's lowest point,
+/// spacing the length of each index axis in the world and direction its unit world direction: any linear
+/// transform is placed as OpenVDB places it (rotations, shears, mirrors; docs/coordinates.md); frustum
+/// transforms are rejected with a clear error. The global cells are
 /// tiled into cubes of `brickCells` cells; a brick is kept only if it owns a cell with an active corner.
 /// Brick values come from the tree (inactive points read as the background, or -background inside a level
 /// set). Every size stored in the file, down to the value chunks of the grid's tree (vdb_tree_check.h), is
