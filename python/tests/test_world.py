@@ -194,3 +194,61 @@ def test_lps_formats_place_the_mesh_through_their_affine(tmp_path, extract_exe, 
     ras_verts, _, ras_stats = run_extract(extract_exe, path, str(ras_dir), "--model-version", "1", "--space", "ras")
     assert ras_stats["world"]["space"] == "RAS"
     np.testing.assert_allclose(ras_verts, verts * np.array([-1, -1, 1]), atol=1e-5)
+
+
+def write_dicom_series(folder, data, rowcos, colcos, spacing, origin, step):
+    """A DICOM CT series written with pydicom (an independent writer): slice k holds data[:, :, k] as rows j and
+    columns i, int16 with RescaleSlope 0.001; files in shuffled order."""
+    pydicom = pytest.importorskip("pydicom")
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+    normal = np.cross(rowcos, colcos)
+    series, study = generate_uid(), generate_uid()
+    stored = np.round(data * 1000).astype(np.int16)
+    order = np.random.default_rng(7).permutation(data.shape[2])
+    for n, k in enumerate(order):
+        meta = FileMetaDataset()
+        meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.2"
+        meta.MediaStorageSOPInstanceUID = generate_uid()
+        meta.TransferSyntaxUID = ExplicitVRLittleEndian
+        ds = Dataset()
+        ds.file_meta = meta
+        ds.SOPClassUID, ds.SOPInstanceUID = meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID
+        ds.StudyInstanceUID, ds.SeriesInstanceUID, ds.Modality = study, series, "CT"
+        ds.InstanceNumber = int(k) + 1
+        ds.ImagePositionPatient = [float(v) for v in origin + k * step * normal]
+        ds.ImageOrientationPatient = [float(v) for v in list(rowcos) + list(colcos)]
+        ds.PixelSpacing = [float(spacing[1]), float(spacing[0])]  # between rows, between columns
+        ds.SliceThickness = float(step)
+        ds.Rows, ds.Columns = data.shape[1], data.shape[0]
+        ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+        ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 1
+        ds.RescaleSlope, ds.RescaleIntercept = 0.001, 0
+        ds.PixelData = np.ascontiguousarray(stored[:, :, k].T).tobytes()
+        ds.is_little_endian, ds.is_implicit_VR = True, False
+        ds.save_as(os.path.join(folder, "slice%03d.dcm" % n), write_like_original=False)
+    return stored * 0.001
+
+
+def test_dicom_series_places_the_mesh_through_its_orientation(tmp_path, extract_exe):
+    """An oblique DICOM series: the mesh is scikit-image's of the rescaled samples mapped through the series'
+    own placement (columns along the row cosines, rows along the column cosines, slices along their normal), in
+    LPS, wound outward."""
+    rot = rotation((1, -1, 2), 25)
+    rowcos, colcos = rot[:, 0], rot[:, 1]
+    spacing, origin, step = np.array([0.7, 0.9]), np.array([-40.0, 12.0, 30.0]), 1.3
+    folder = tmp_path / "series"
+    folder.mkdir()
+    values = write_dicom_series(str(folder), blob(), rowcos, colcos, spacing, origin, step)
+    affine = np.eye(4)
+    affine[:3, 0], affine[:3, 1] = rowcos * spacing[0], colcos * spacing[1]
+    affine[:3, 2], affine[:3, 3] = np.cross(rowcos, colcos) * step, origin
+    verts, faces, stats = run_extract(extract_exe, str(folder), str(tmp_path), "--model-version", "1")
+    assert stats["world"]["space"] == "LPS"
+    np.testing.assert_allclose(np.array(stats["world"]["index_to_world"]), affine, atol=1e-6)
+    sk_verts, _, _, _ = measure.marching_cubes(values, 1.0)
+    world = nib.affines.apply_affine(affine, sk_verts)
+    d1, _ = spatial.cKDTree(world).query(verts)
+    d2, _ = spatial.cKDTree(verts).query(world)
+    assert max(d1.max(), d2.max()) < 1e-5 * np.abs(world).max()
+    assert signed_volume(verts, faces) > 0
