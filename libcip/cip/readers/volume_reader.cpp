@@ -121,11 +121,12 @@ SparseVolume readVolume(const std::string& path, const VolumeReadOptions& option
       break;
   }
   if (!options.raw) {
-    throw Error(path +
-                ": not a .nrrd, .nhdr, .nii, .nii.gz, .hdr, .img, .mha, .mhd, .vdb or .dcm file or a DICOM folder; "
-                "reading it as raw "
-                "data needs its dims "
-                "and sample type");
+    throw Error(
+        path +
+        ": not a .nrrd, .nhdr, .nii, .nii.gz, .hdr, .img, .mha, .mhd, .vdb or .dcm file or a DICOM folder; "
+        "reading it as raw "
+        "data needs its dims "
+        "and sample type");
   }
   return fromDense(readRaw(path, *options.raw, options.maxBytes));
 }

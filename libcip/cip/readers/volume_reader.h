@@ -5,10 +5,10 @@
 ///
 /// By name (case-insensitive): .nrrd/.nhdr -> NRRD, .nii/.nii.gz/.hdr/.img (and .hdr.gz/.img.gz) -> NIfTI-1
 /// or NIfTI-2, .mha/.mhd -> MetaImage, .vdb -> OpenVDB (sparse bricks), a folder or .dcm -> DICOM series
-/// (dicom_reader.h), anything else -> raw, which needs a RawFormat (dims, sample type, ...). A known extension
-/// always wins over a RawFormat, except for a .img without a .hdr beside it, which a RawFormat reads as raw
-/// data. Dense formats come back as one brick owning every cell (fromDense), placed as the file says (origin,
-/// spacing, direction, world space: docs/volumes.md).
+/// (dicom_reader.h), anything else -> raw, which needs a RawFormat (dims, sample type, ...). A known
+/// extension always wins over a RawFormat, except for a .img without a .hdr beside it, which a RawFormat
+/// reads as raw data. Dense formats come back as one brick owning every cell (fromDense), placed as the file
+/// says (origin, spacing, direction, world space: docs/volumes.md).
 #pragma once
 #include <optional>
 #include <string>
