@@ -18,13 +18,6 @@ namespace {
 constexpr std::size_t kMaxHeaderBytes = std::size_t(1) << 20;
 constexpr std::int64_t kMaxDataFiles = std::int64_t(1) << 20;  ///< data files of one LIST or pattern
 
-std::string trim(const std::string& s) {
-  std::size_t b = 0, e = s.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
-  return s.substr(b, e - b);
-}
-
 std::string lower(std::string s) {
   for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
   return s;
@@ -35,18 +28,6 @@ std::string quoted(const std::string& s) {
   std::string out;
   for (char c : s.substr(0, 40)) out += std::isprint(static_cast<unsigned char>(c)) ? c : '?';
   return "'" + out + (s.size() > 40 ? "...'" : "'");
-}
-
-std::vector<std::string> words(const std::string& s) {
-  std::vector<std::string> out;
-  std::size_t i = 0;
-  while (i < s.size()) {
-    while (i < s.size() && std::isspace(static_cast<unsigned char>(s[i]))) ++i;
-    std::size_t start = i;
-    while (i < s.size() && !std::isspace(static_cast<unsigned char>(s[i]))) ++i;
-    if (i > start) out.push_back(s.substr(start, i - start));
-  }
-  return out;
 }
 
 double parseNumber(const std::string& word, const std::string& key) {
@@ -100,7 +81,7 @@ struct Fields {
     std::string name;
     const std::string* v = find(names, &name);
     if (!v) return {};
-    std::vector<std::string> w = words(*v);
+    std::vector<std::string> w = splitWords(*v);
     if (w.size() != count)
       throw Error("MetaImage " + name + " has " + std::to_string(w.size()) + " numbers, expected " +
                   std::to_string(count));
@@ -125,11 +106,11 @@ SampleType elementType(const std::string& text) {
 
 /// NDims, DimSize and the frame count.
 int readDims(const Fields& f, MetaImageHeader& h, std::vector<std::int64_t>& dimSize) {
-  const std::int64_t nd = parseInteger(trim(f.require("NDims")), "NDims");
+  const std::int64_t nd = parseInteger(trimBlanks(f.require("NDims")), "NDims");
   if (nd != 3 && nd != 4)
     throw Error("MetaImage NDims is " + std::to_string(nd) +
                 "; a volume needs 3 (or 4 for a series of frames)");
-  std::vector<std::string> w = words(f.require("DimSize"));
+  std::vector<std::string> w = splitWords(f.require("DimSize"));
   if (w.size() != static_cast<std::size_t>(nd))
     throw Error("MetaImage DimSize has " + std::to_string(w.size()) +
                 " numbers, expected NDims = " + std::to_string(nd));
@@ -172,27 +153,27 @@ void readPlacement(const Fields& f, int nd, MetaImageHeader& h) {
 
 /// Storage fields: byte order, compression, header size, channels.
 void readStorage(const Fields& f, MetaImageHeader& h) {
-  h.type = elementType(trim(f.require("ElementType")));
-  if (const std::string* type = f.find({"ObjectType"}); type && lower(trim(*type)) != "image")
-    throw Error("MetaImage ObjectType is " + quoted(trim(*type)) + ", not Image");
+  h.type = elementType(trimBlanks(f.require("ElementType")));
+  if (const std::string* type = f.find({"ObjectType"}); type && lower(trimBlanks(*type)) != "image")
+    throw Error("MetaImage ObjectType is " + quoted(trimBlanks(*type)) + ", not Image");
   if (!f.flag({"BinaryData"}, true))
     throw Error("MetaImage BinaryData = False (ASCII samples) is not supported");
   h.endian = f.flag({"BinaryDataByteOrderMSB", "ElementByteOrderMSB"}, false) ? Endian::Big : Endian::Little;
   h.compressed = f.flag({"CompressedData"}, false);
   if (const std::string* v = f.find({"CompressedDataSize"})) {
-    h.compressedBytes = parseInteger(trim(*v), "CompressedDataSize");
+    h.compressedBytes = parseInteger(trimBlanks(*v), "CompressedDataSize");
     if (h.compressedBytes < 0) throw Error("MetaImage CompressedDataSize is negative");
   }
   if (const std::string* v = f.find({"HeaderSize"})) {
-    h.headerSize = parseInteger(trim(*v), "HeaderSize");
+    h.headerSize = parseInteger(trimBlanks(*v), "HeaderSize");
     if (h.headerSize < -1)
       throw Error("MetaImage HeaderSize " + std::to_string(h.headerSize) + " is invalid");
   }
   if (const std::string* v = f.find({"ElementNumberOfChannels"});
-      v && parseInteger(trim(*v), "ElementNumberOfChannels") != 1)
-    throw Error("MetaImage ElementNumberOfChannels is " + trim(*v) +
+      v && parseInteger(trimBlanks(*v), "ElementNumberOfChannels") != 1)
+    throw Error("MetaImage ElementNumberOfChannels is " + trimBlanks(*v) +
                 "; only scalar images (1) are supported");
-  if (const std::string* v = f.find({"AnatomicalOrientation"})) h.anatomicalOrientation = trim(*v);
+  if (const std::string* v = f.find({"AnatomicalOrientation"})) h.anatomicalOrientation = trimBlanks(*v);
 }
 
 /// The folder of `path` with a trailing '/', or "" for a bare file name.
@@ -251,12 +232,12 @@ void patternFiles(const std::string& value, const std::string& path, std::int64_
   if (count > kMaxDataFiles)
     throw Error("MetaImage ElementDataFile pattern would need " + std::to_string(count) +
                 " data files (at most " + std::to_string(kMaxDataFiles) + ")");
-  std::vector<std::string> w = words(value);
+  std::vector<std::string> w = splitWords(value);
   std::string pattern = w[0];
   std::vector<std::string> numbers(w.begin() + 1, w.end());
   if (w.size() >= 5) {  // a file name with spaces: the last three words are the numbers
     pattern = value.substr(0, value.find(w[w.size() - 3], w[0].size()));
-    pattern = trim(pattern);
+    pattern = trimBlanks(pattern);
     numbers.assign(w.end() - 3, w.end());
   }
   constexpr std::int64_t kLimit = std::int64_t(1) << 40;  // file numbers, steps: far below overflow
@@ -276,7 +257,7 @@ void patternFiles(const std::string& value, const std::string& path, std::int64_
 void readDataFiles(const std::string& value, const std::string& text, std::size_t pos,
                    const std::string& path, const std::vector<std::int64_t>& dimSize, MetaImageHeader& h) {
   const auto nd = static_cast<int>(dimSize.size());
-  std::vector<std::string> w = words(value);
+  std::vector<std::string> w = splitWords(value);
   if (w.empty()) throw Error("MetaImage ElementDataFile is empty");
   if (lower(value) == "local") {
     h.local = true;
@@ -298,7 +279,7 @@ void readDataFiles(const std::string& value, const std::string& text, std::size_
     while (pos < text.size() && static_cast<std::int64_t>(listed) < count) {
       std::size_t end = text.find('\n', pos);
       if (end == std::string::npos) end = text.size();
-      std::string name = trim(text.substr(pos, end - pos));
+      std::string name = trimBlanks(text.substr(pos, end - pos));
       pos = end + 1;
       if (name.empty()) continue;
       h.dataFiles.push_back(resolve(name, path));
@@ -324,7 +305,7 @@ MetaImageHeader parseMetaImageHeader(const std::string& text, const std::string&
   while (pos < text.size() && !ended) {
     std::size_t end = text.find('\n', pos);
     if (end == std::string::npos) end = text.size();
-    std::string line = trim(text.substr(pos, end - pos));
+    std::string line = trimBlanks(text.substr(pos, end - pos));
     pos = std::min(end + 1, text.size());
     ++lineNumber;
     if (line.empty()) continue;
@@ -333,8 +314,8 @@ MetaImageHeader parseMetaImageHeader(const std::string& text, const std::string&
     if (sep == std::string::npos || sep == 0)
       throw Error("not a MetaImage header: line " + std::to_string(lineNumber) + " " + quoted(line) +
                   " is not 'Key = Value'");
-    std::string key = trim(line.substr(0, sep));
-    std::string value = trim(line.substr(sep + 1));
+    std::string key = trimBlanks(line.substr(0, sep));
+    std::string value = trimBlanks(line.substr(sep + 1));
     fields.byKey[lower(key)] = {key, value};
     if (lower(key) == "elementdatafile") {
       dataFile = value;

@@ -21,25 +21,6 @@ namespace {
 /// Inflating more than this just to skip it is refused (a bogus header could otherwise keep a reader busy).
 constexpr std::int64_t kMaxCompressedSkip = std::int64_t(1) << 30;
 
-std::string trim(std::string_view s) {
-  std::size_t b = 0, e = s.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
-  return std::string(s.substr(b, e - b));
-}
-
-std::vector<std::string> tokens(const std::string& s) {
-  std::vector<std::string> out;
-  std::size_t i = 0;
-  while (i < s.size()) {
-    while (i < s.size() && std::isspace(static_cast<unsigned char>(s[i]))) ++i;
-    std::size_t b = i;
-    while (i < s.size() && !std::isspace(static_cast<unsigned char>(s[i]))) ++i;
-    if (i > b) out.push_back(s.substr(b, i - b));
-  }
-  return out;
-}
-
 /// Field name in the form used for lookup: lower case, blanks removed ("data file" and "datafile" are the
 /// same).
 std::string fieldKey(const std::string& name) {
@@ -85,7 +66,7 @@ bool parseVector(const std::string& token, int line, const std::string& field, s
   std::size_t start = 0;
   while (true) {
     std::size_t comma = inner.find(',', start);
-    out.push_back(parseNumber(trim(inner.substr(start, comma - start)), line, field));
+    out.push_back(parseNumber(trimBlanks(inner.substr(start, comma - start)), line, field));
     if (comma == std::string::npos) break;
     start = comma + 1;
   }
@@ -179,9 +160,9 @@ void addFieldLine(std::string_view raw, int lineNo, std::map<std::string, Field>
     }
   }
   std::string key = fieldKey(std::string(raw.substr(0, colon)));
-  std::string value = trim(raw.substr(std::min(raw.size(), colon + 1)));
+  std::string value = trimBlanks(raw.substr(std::min(raw.size(), colon + 1)));
   if (key.empty()) fail(lineNo, "empty field name");
-  if (fields.count(key)) fail(lineNo, "field '" + trim(raw.substr(0, colon)) + "' appears twice");
+  if (fields.count(key)) fail(lineNo, "field '" + trimBlanks(raw.substr(0, colon)) + "' appears twice");
   fields[key] = Field{value, lineNo};
 }
 
@@ -197,7 +178,7 @@ std::size_t readListLines(std::string_view text, std::size_t pos, int& lineNo,
     if (next > kNrrdMaxHeaderBytes) {
       throw Error("header longer than " + std::to_string(kNrrdMaxHeaderBytes >> 20) + " MiB");
     }
-    std::string name = trim(text.substr(pos, end - pos));
+    std::string name = trimBlanks(text.substr(pos, end - pos));
     pos = next;
     if (name.empty()) break;
     if (name.find('\0') != std::string::npos) fail(lineNo, "binary data in the data file list");
@@ -242,7 +223,7 @@ HeaderLines readHeaderLines(std::string_view text) {
     }
     addFieldLine(raw, lineNo, lines.fields);
     if (const Field* f = lines.get("datafile");
-        f && f->line == lineNo && tokens(f->value).size() >= 1 && tokens(f->value)[0] == "LIST") {
+        f && f->line == lineNo && splitWords(f->value).size() >= 1 && splitWords(f->value)[0] == "LIST") {
       pos = readListLines(text, pos, lineNo, lines.list);
       break;
     }
@@ -283,7 +264,7 @@ int parseDimensionField(const Field& f) {
 }
 
 std::vector<std::int64_t> parseSizesField(const Field& f, int dimension) {
-  auto t = tokens(f.value);
+  auto t = splitWords(f.value);
   expectOneEntryPerAxis(t.size(), dimension, f.line, "sizes");
   std::vector<std::int64_t> sizes;
   for (const auto& s : t) {
@@ -351,7 +332,7 @@ int nonSpatialAxis(const HeaderLines& lines, const std::vector<std::int64_t>& si
       if (t[a] == "none") axes.push_back(a);
     line = dirs->line;
   } else if (const Field* kinds = lines.get("kinds")) {
-    auto t = tokens(kinds->value);
+    auto t = splitWords(kinds->value);
     expectOneEntryPerAxis(t.size(), 4, kinds->line, "kinds");
     for (int a = 0; a < 4; ++a)
       if (!spatialKind(t[a])) axes.push_back(a);
@@ -396,7 +377,7 @@ void parseSpaceDirections(const Field& f, int dimension, int frameAxis, NrrdHead
 
 /// Spacing from `spacings` ('nan' keeps an axis' spacing of 1; a negative spacing flips its axis).
 void parseSpacings(const Field& f, int dimension, int frameAxis, NrrdHeader& h) {
-  auto t = tokens(f.value);
+  auto t = splitWords(f.value);
   expectOneEntryPerAxis(t.size(), dimension, f.line, "spacings");
   int a = 0;
   for (int axis = 0; axis < dimension; ++axis) {
@@ -512,7 +493,7 @@ NamePattern parseNamePattern(const std::string& format, int line) {
 void checkSubdim(const std::string& token, std::size_t files, const HeaderLines& lines, int line) {
   const std::int64_t subdim = parseInteger(token, line, "data file subdimension");
   const Field& sizesField = lines.require("sizes", "sizes");
-  auto sizes = tokens(sizesField.value);
+  auto sizes = splitWords(sizesField.value);
   if (subdim < 1 || subdim > static_cast<std::int64_t>(sizes.size())) {
     fail(line, "data file: subdimension " + token + " is not between 1 and the dimension");
   }
@@ -552,7 +533,7 @@ std::vector<std::string> numberedFiles(const std::vector<std::string>& t, const 
 /// "data file": one name, LIST, or a numbered format (attached data when absent, which needs the blank line).
 void parseDataFile(const HeaderLines& lines, NrrdHeader& h) {
   if (const Field* f = lines.get("datafile")) {
-    auto t = tokens(f->value);
+    auto t = splitWords(f->value);
     if (f->value.empty()) fail(f->line, "data file: empty file name");
     if (t[0] == "LIST") {
       if (t.size() > 2) fail(f->line, "data file: LIST takes at most a subdimension after it");

@@ -13,6 +13,7 @@
 #include <cstdio>
 #include <functional>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -35,6 +36,11 @@ std::string describeDenseFile(const std::string& path, const std::string& format
 
 /// True when `path` ends with `suffix`, ignoring ASCII case.
 bool endsWithNoCase(const std::string& path, const std::string& suffix);
+
+/// `s` without leading and trailing blanks (text headers: NRRD, MetaImage).
+std::string trimBlanks(std::string_view s);
+/// The blank-separated words of `s`.
+std::vector<std::string> splitWords(std::string_view s);
 
 /// Sequential reader of bytes; throws cip::Error (message starts with the path) on I/O or decoding failure.
 class ByteSource {
