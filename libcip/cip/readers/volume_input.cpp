@@ -162,6 +162,24 @@ std::size_t FileByteSource::read(void* buffer, std::size_t n) {
   return got;
 }
 
+namespace {
+
+/// The input buffer of a decompressor: moves the `keep` unread bytes at `next` to the front of `buffer` and
+/// fills the rest from `file`, setting `end` at the end of the file. Returns the bytes read.
+template <class Byte>
+std::size_t refillInput(std::FILE* file, std::vector<Byte>& buffer, const Byte* next, std::size_t keep,
+                        bool& end, const std::string& path) {
+  if (keep > 0 && next != buffer.data()) std::memmove(buffer.data(), next, keep);
+  const std::size_t got = std::fread(buffer.data() + keep, 1, buffer.size() - keep, file);
+  if (got < buffer.size() - keep) {
+    if (std::ferror(file)) throw Error(path + ": read error: " + std::strerror(errno));
+    end = true;
+  }
+  return got;
+}
+
+}  // namespace
+
 GzipByteSource::GzipByteSource(const std::string& path, std::uint64_t offset) : ByteSource(path) {
   file_ = openAt(path, offset);
   auto* zs = new z_stream{};
@@ -187,14 +205,8 @@ GzipByteSource::~GzipByteSource() {
 bool GzipByteSource::refill() {
   auto* zs = static_cast<z_stream*>(stream_);
   if (inputEnd_) return false;
-  // Keep unread input at the front, append fresh bytes behind it.
-  std::size_t keep = zs->avail_in;
-  if (keep > 0 && zs->next_in != input_.data()) std::memmove(input_.data(), zs->next_in, keep);
-  std::size_t got = std::fread(input_.data() + keep, 1, input_.size() - keep, file_);
-  if (got < input_.size() - keep) {
-    if (std::ferror(file_)) throw Error(path_ + ": read error: " + std::strerror(errno));
-    inputEnd_ = true;
-  }
+  const std::size_t keep = zs->avail_in;
+  const std::size_t got = refillInput(file_, input_, zs->next_in, keep, inputEnd_, path_);
   zs->next_in = input_.data();
   zs->avail_in = static_cast<uInt>(keep + got);
   return got > 0;
@@ -288,13 +300,8 @@ Bzip2ByteSource::~Bzip2ByteSource() {
 bool Bzip2ByteSource::refill() {
   auto* bz = static_cast<bz_stream*>(stream_);
   if (inputEnd_) return false;
-  std::size_t keep = bz->avail_in;
-  if (keep > 0 && bz->next_in != input_.data()) std::memmove(input_.data(), bz->next_in, keep);
-  std::size_t got = std::fread(input_.data() + keep, 1, input_.size() - keep, file_);
-  if (got < input_.size() - keep) {
-    if (std::ferror(file_)) throw Error(path_ + ": read error: " + std::strerror(errno));
-    inputEnd_ = true;
-  }
+  const std::size_t keep = bz->avail_in;
+  const std::size_t got = refillInput(file_, input_, bz->next_in, keep, inputEnd_, path_);
   bz->next_in = input_.data();
   bz->avail_in = static_cast<unsigned>(keep + got);
   return got > 0;
