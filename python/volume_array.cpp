@@ -4,6 +4,7 @@
 #include <tbb/parallel_for.h>
 
 #include <cstring>
+#include <type_traits>
 
 #include "cip/core/error.h"
 
@@ -77,23 +78,11 @@ DenseGrid VolumeArray::toGrid(const std::string& description) const {
   grid.geometry = geometry_;
   grid.description = description;
   grid.allocate(geometry_.dims);
-  switch (kind_) {
-    case 'f':
-      itemSize_ == 4 ? convert<float>(data_, strides_, grid) : convert<double>(data_, strides_, grid);
-      break;
-    case 'b':
-    case 'u':
-      itemSize_ == 1   ? convert<std::uint8_t>(data_, strides_, grid)
-      : itemSize_ == 2 ? convert<std::uint16_t>(data_, strides_, grid)
-      : itemSize_ == 4 ? convert<std::uint32_t>(data_, strides_, grid)
-                       : convert<std::uint64_t>(data_, strides_, grid);
-      break;
-    default:
-      itemSize_ == 1   ? convert<std::int8_t>(data_, strides_, grid)
-      : itemSize_ == 2 ? convert<std::int16_t>(data_, strides_, grid)
-      : itemSize_ == 4 ? convert<std::int32_t>(data_, strides_, grid)
-                       : convert<std::int64_t>(data_, strides_, grid);
-  }
+  visitElementType(samples().type, [&](auto sample) {
+    using T = decltype(sample);
+    // A bool sample is its byte, as numpy stores it.
+    convert<std::conditional_t<std::is_same_v<T, bool>, std::uint8_t, T>>(data_, strides_, grid);
+  });
   return grid;
 }
 
