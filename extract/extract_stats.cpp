@@ -53,11 +53,9 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
     // Where the outputs are: the frame, the box of the non-empty cells and the full index-to-world map.
     const WorldTransform& w = s.world;
     const auto [lo, hi] = worldBounds(m, w);
-    const Mat3 a = w.linear * m.geometry.spacing.asDiagonal();
-    const Vec3 b = w.point(m.geometry.origin);
+    const Eigen::Matrix4d a = w.indexToWorld(m.geometry);
     nlohmann::json rows = nlohmann::json::array();
-    for (int r = 0; r < 3; ++r) rows.push_back({a(r, 0), a(r, 1), a(r, 2), b[r]});
-    rows.push_back({0.0, 0.0, 0.0, 1.0});
+    for (int r = 0; r < 4; ++r) rows.push_back({a(r, 0), a(r, 1), a(r, 2), a(r, 3)});
     j["world"] = {{"space", toString(w.space)},
                   {"bounds", {{"lo", {lo[0], lo[1], lo[2]}}, {"hi", {hi[0], hi[1], hi[2]}}}},
                   {"index_to_world", rows}};

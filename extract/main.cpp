@@ -147,7 +147,7 @@ cip::WorldSpace outputSpace(const Options& opt) {
 
 /// The marching-cubes and patch meshes the command line asks for, in world coordinates.
 void writeMeshes(const Options& opt, const cip::Model& model, cip::ExtractStats& stats) {
-  const cip::WorldTransform world = cip::WorldTransform::of(model.geometry, outputSpace(opt));
+  const cip::WorldTransform& world = stats.world;  // the frame --space chose, checked before the build
   if (!opt.mcMesh.empty()) {
     auto t = Clock::now();
     cip::MarchingCubesOptions mo;

@@ -138,8 +138,7 @@ py::tuple evaluate(const Model& model, const py::array& points) {
   py::gil_scoped_release release;
   const GridGeometry& geo = model.geometry;
   const WorldTransform world = WorldTransform::of(geo);
-  // d/dworld = J^T d/dindex with index = worldToIndex(world.toFrame(point)).
-  const Mat3 jt = world.normalMatrix * geo.spacing.cwiseInverse().asDiagonal();
+  const Mat3 toWorld = world.indexGradientToWorld(geo.spacing);
   tbb::parallel_for(py::ssize_t{0}, n, [&](py::ssize_t i) {
     const Vec3 index = geo.worldToIndex(world.toFrame(Vec3(in[3 * i], in[3 * i + 1], in[3 * i + 2])));
     const std::int64_t c = cellAt(model, index);
@@ -150,7 +149,7 @@ py::tuple evaluate(const Model& model, const py::array& points) {
     const auto cell = static_cast<std::size_t>(c);
     const PatchDerivatives d = model.patch(cell).derivatives(index - model.cellOrigin(cell));
     v[i] = d.value;
-    const Vec3 gw = jt * d.gradient;
+    const Vec3 gw = toWorld * d.gradient;
     for (int a = 0; a < 3; ++a) g[3 * i + a] = gw[a];
   });
   py::gil_scoped_acquire acquire;
@@ -176,13 +175,11 @@ WorldTransform worldOf(const Model& model, const py::object& space) {
 
 /// The 4x4 index-to-world matrix of the model's volume (numpy, float64).
 py::array_t<double> affine(const Model& model) {
-  const WorldTransform w = WorldTransform::of(model.geometry);
-  const Mat3 a = w.linear * model.geometry.spacing.asDiagonal();
-  const Vec3 b = w.point(model.geometry.origin);
+  const Eigen::Matrix4d a = WorldTransform::of(model.geometry).indexToWorld(model.geometry);
   py::array_t<double> out({py::ssize_t{4}, py::ssize_t{4}});
   auto o = out.mutable_unchecked<2>();
   for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) o(r, c) = r < 3 ? (c < 3 ? a(r, c) : b[r]) : (c == 3 ? 1.0 : 0.0);
+    for (int c = 0; c < 4; ++c) o(r, c) = a(r, c);
   return out;
 }
 

@@ -112,6 +112,7 @@ double meanCurvature(const Vec3& g, const Mat3& h) {
 PatchScene::PatchScene(const Model& model, const PatchSceneOptions& options)
     : model_(model),
       world_(WorldTransform::of(model.geometry, options.space)),
+      gradientToWorld_(world_.indexGradientToWorld(model.geometry.spacing)),
       curvature_(options.curvature),
       device_(options.threads) {
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
@@ -160,20 +161,19 @@ Ray PatchScene::toFrame(const Ray& ray) const {
   return r;
 }
 
-SurfaceHit PatchScene::surfaceAt(const Ray& ray, double t, std::uint32_t cell) const {
+SurfaceHit PatchScene::surfaceAt(const Ray& ray, const Ray& frameRay, double t, std::uint32_t cell) const {
   SurfaceHit hit;
   hit.t = t;
   hit.position = ray.origin + t * ray.direction;
   hit.id = cell;
   hit.hasCellIndex = true;
   hit.cellIndex = model_.cells[cell].index;
-  const Vec3 local = worldToLocal(ray.origin, cell) +
-                     t * world_.directionToFrame(ray.direction).cwiseQuotient(model_.geometry.spacing);
+  const Vec3 local =
+      frameToLocal(frameRay.origin, cell) + t * frameRay.direction.cwiseQuotient(model_.geometry.spacing);
   const CornerPatch p = patch(cell);
   const PatchDerivatives d = curvature_ ? p.derivatives(local) : p.valueAndGradient(local);
-  // local = (frame - origin) / spacing - cell and frame = world_.toFrame(world):
-  // d/dworld = J^T d/dlocal with J = diag(1 / spacing) * world_.inverse.
-  const Mat3 jt = world_.normalMatrix * model_.geometry.spacing.cwiseInverse().asDiagonal();
+  // local = (frame - origin) / spacing - cell and frame = world_.toFrame(world).
+  const Mat3& jt = gradientToWorld_;
   const Vec3 g = jt * d.gradient;
   const double gn = g.norm();
   hit.normal = gn > 0 ? Vec3(g / gn) : Vec3(-ray.direction);
@@ -191,7 +191,7 @@ bool PatchScene::intersect(const Ray& worldRay, double tNear, double tFar, Surfa
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(scene_, &ctx.embree, &rh);
   if (!ctx.found) return false;
-  hit = surfaceAt(worldRay, ctx.bestT, ctx.bestCell);
+  hit = surfaceAt(worldRay, ray, ctx.bestT, ctx.bestCell);
   return true;
 }
 

@@ -37,11 +37,6 @@ class PatchScene : public RenderScene {
   Box bounds() const override { return bounds_; }
   std::size_t primitives() const override { return model_.cells.size(); }
 
-  /// Surface data at the hit of cell `cell` at ray parameter t: position, normal (world gradient direction)
-  /// and, if the scene was built with curvature, mean curvature in world units from the exact gradient and
-  /// Hessian.
-  SurfaceHit surfaceAt(const Ray& ray, double t, std::uint32_t cell) const;
-
   // Used by the Embree callbacks.
   const Model& model() const { return model_; }
   /// The cell's patch, assembled from the model when asked for (a copy of the corners; cheaper than faulting
@@ -59,9 +54,14 @@ class PatchScene : public RenderScene {
 
   /// The world ray in the model's grid frame (same parameter t).
   Ray toFrame(const Ray& ray) const;
+  /// Surface data at the hit of cell `cell` at ray parameter t (the ray in the world and in the grid frame):
+  /// position, normal (world gradient direction) and, if the scene was built with curvature, mean curvature
+  /// in world units from the exact gradient and Hessian.
+  SurfaceHit surfaceAt(const Ray& worldRay, const Ray& frameRay, double t, std::uint32_t cell) const;
 
   const Model& model_;
   WorldTransform world_;
+  Mat3 gradientToWorld_;  ///< cell-local gradient -> world gradient (world_.indexGradientToWorld)
   bool curvature_ = true;
   Box bounds_;
   EmbreeDevice device_;

@@ -7,12 +7,12 @@
 ///  - grid frame: origin + spacing * index (component-wise). Models are built, stored and evaluated in this
 ///    axis-aligned frame; indexToWorld()/worldToIndex() map to and from it. For a grid whose `direction` is
 ///    the identity (analytic fields, raw files, VDB, most NRRD) the grid frame *is* the world.
-///  - world coordinates: frameToWorld(grid frame) = origin + direction * (spacing * index), the full
-///    index-to-world affine of the file (NIfTI sform/qform, NRRD `space directions`, MetaImage
-///    `TransformMatrix`, DICOM orientation). Applied where coordinates leave cip: meshes, renders, bounds.
+///  - world coordinates: origin + direction * (spacing * index), the full index-to-world affine of the file
+///    (NIfTI sform/qform, NRRD `space directions`, MetaImage `TransformMatrix`, DICOM orientation), applied
+///    where coordinates leave cip (meshes, renders, bounds) by WorldTransform (world_transform.h).
 ///  - cell-local coordinates: cell (i,j,k) is the unit cube [0,1]^3 at index offset (i,j,k).
 #pragma once
-#include <Eigen/LU>  // inverse() and determinant() of the direction
+#include <Eigen/LU>  // inverse() and determinant() of direction matrices
 #include <array>
 #include <cstdint>
 
@@ -40,9 +40,6 @@ struct GridGeometry {
   /// Index -> grid frame (axis-aligned; see the file comment).
   Vec3 indexToWorld(const Vec3& index) const { return origin + spacing.cwiseProduct(index); }
   Vec3 worldToIndex(const Vec3& world) const { return (world - origin).cwiseQuotient(spacing); }
-  /// Grid frame -> world (applies `direction` about the origin), and back.
-  Vec3 frameToWorld(const Vec3& frame) const { return origin + direction * (frame - origin); }
-  Vec3 worldToFrame(const Vec3& world) const { return origin + direction.inverse() * (world - origin); }
   /// True when the grid frame is the world (no rotation, flip or shear).
   bool axisAligned() const { return direction == Mat3::Identity(); }
   std::int64_t pointCount() const { return dims[0] * dims[1] * dims[2]; }

@@ -44,6 +44,13 @@ WorldTransform WorldTransform::of(const GridGeometry& g, WorldSpace output) {
   return t;
 }
 
+Eigen::Matrix4d WorldTransform::indexToWorld(const GridGeometry& g) const {
+  Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
+  m.topLeftCorner<3, 3>() = linear * g.spacing.asDiagonal();
+  m.topRightCorner<3, 1>() = point(g.origin);
+  return m;
+}
+
 WorldSpace parseWorldSpace(const std::string& name) {
   std::string n;
   for (char c : name) n += static_cast<char>(std::tolower(static_cast<unsigned char>(c)));

@@ -34,6 +34,13 @@ struct WorldTransform {
   /// True when the map reverses orientation (odd number of flips): triangles must be re-wound.
   bool flipsOrientation() const { return linear.determinant() < 0; }
   bool isIdentity() const { return linear == Mat3::Identity() && offset == Vec3::Zero(); }
+  /// A gradient in index (or cell-local) coordinates of a grid with `spacing`, as a world gradient:
+  /// normalMatrix * diag(1 / spacing). Its transpose maps Hessians: H_world = J H J^T.
+  Mat3 indexGradientToWorld(const Vec3& spacing) const {
+    return normalMatrix * spacing.cwiseInverse().asDiagonal();
+  }
+  /// The 4x4 index-to-world matrix of grid `g` in this world: [linear * diag(spacing) | mapped origin].
+  Eigen::Matrix4d indexToWorld(const GridGeometry& g) const;
 };
 
 /// Parses "ras", "las", "lps" (any case); throws cip::Error naming the accepted values otherwise.
