@@ -49,6 +49,15 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
                     {"max_normal_degrees", number(s.storage->normalDegrees.max)},
                     {"one_sided_hits", s.storage->oneSidedHits()}};
   }
+  if (s.holeCells) {
+    nlohmann::json cells = nlohmann::json::array();
+    for (std::size_t i = 0; i < s.holeCells->size() && i < 1000; ++i) {
+      const auto& index = m.cells[(*s.holeCells)[i]].index;
+      cells.push_back({index[0], index[1], index[2]});
+    }
+    j["holes"] = {
+        {"open_face_leak_cells", s.holeCells->size()}, {"lattice", s.holeLattice}, {"cells", cells}};
+  }
   {
     // Where the outputs are: the frame, the box of the non-empty cells and the full index-to-world map.
     const WorldTransform& w = s.world;

@@ -19,7 +19,12 @@ struct ExtractStats {
   std::map<std::string, std::size_t> bytesWritten;  ///< per output file
   std::optional<FittingStats> fitting;              ///< the fitted construction's fallback (method fitted)
   std::optional<ModelDisplacement> storage;         ///< --check-storage: the model as stored against as built
-  int modelVersion = 2;                             ///< the format the model file was written in
+  /// --check-holes: the cells (indices into the stored model's cells) whose patch takes the other sign than
+  /// the corners somewhere on an open face (surface_fidelity.h, openFaceLeakCells), and the face lattice
+  /// used.
+  std::optional<std::vector<std::uint32_t>> holeCells;
+  int holeLattice = 0;
+  int modelVersion = 2;  ///< the format the model file was written in
   WorldTransform world;  ///< grid frame -> the world the meshes and "world" stats are given in
 };
 
@@ -30,7 +35,8 @@ struct ExtractStats {
 /// reconstruction of it and, when auto chose it, "sampling": the effective wavelength (null when infinite),
 /// the sixth-to-fourth difference ratio and the cells measured (reconstruction_choice.h). With
 /// --check-storage, "storage": how far the stored model's surface lies from the built one's
-/// (model_displacement.h).
+/// (model_displacement.h). With --check-holes, "holes": the cells whose patch leaks through an open face
+/// ("open_face_leak_cells", their count; "cells", the grid index (i, j, k) of the first 1000; "lattice").
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

@@ -15,6 +15,7 @@
 #include "cip/core/progress_bar.h"
 #include "cip/core/world_transform.h"
 #include "cip/measure/model_displacement.h"
+#include "cip/measure/surface_fidelity.h"
 #include "cip/mesh/marching_cubes.h"
 #include "cip/mesh/patch_mesh.h"
 #include "cip/meshio/mesh_file.h"
@@ -38,7 +39,7 @@ struct Options {
   std::string space;  ///< --space: world frame of the outputs (empty = the volume's own)
   std::optional<double> iso;
   int resolution = 64, subdiv = 4, threads = 0, modelVersion = 2;
-  bool quiet = false, skipNonFinite = false, checkStorage = false;
+  bool quiet = false, skipNonFinite = false, checkStorage = false, checkHoles = false;
   // raw input
   std::string dims, type, endian = "little", grid;
   int frame = -1;  // 4-D NIfTI / MetaImage: the frame to read
@@ -211,6 +212,18 @@ void checkStorage(const Options& opt, const cip::Model& built, const cip::Model&
         stats.storage->normalDegrees.max, static_cast<long long>(stats.storage->oneSidedHits()));
 }
 
+/// --check-holes: the cells of the model as stored whose patch leaks through an open face (a face no
+/// neighbouring patch continues), where rays see through the surface (docs/method.md, "Holes").
+void checkHoles(const Options& opt, const cip::Model& stored, cip::ExtractStats& stats) {
+  auto t = Clock::now();
+  stats.holeLattice = 33;
+  stats.holeCells = cip::openFaceLeakCells(stored, stats.holeLattice);
+  stats.seconds["check_holes"] = secondsSince(t);
+  if (!opt.quiet)
+    std::fprintf(stderr, "holes: %zu of %zu cells leak through an open face (docs/method.md, \"Holes\")\n",
+                 stats.holeCells->size(), stored.cells.size());
+}
+
 /// Builds the model, naming the flag that skips NaN cells when the input has some.
 cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options, cip::ExtractStats& stats) {
   cip::ProgressBar bar("building", !opt.quiet);
@@ -281,6 +294,7 @@ int run(const Options& opt) {
   stats.seconds["read_back_model"] = secondsSince(t3);
   stats.modelVersion = opt.modelVersion;
   if (opt.checkStorage) checkStorage(opt, model, stored, stats);
+  if (opt.checkHoles) checkHoles(opt, stored, stats);
   model = cip::Model();
   writeMeshes(opt, stored, stats);
   if (!opt.quiet) printSummary(opt, options, stored, stats);
@@ -387,6 +401,11 @@ int main(int argc, char** argv) {
                "after writing, measure how far the surface of the model as stored lies from the model as "
                "built (on rays through every cell: distance in voxels, normal angle; docs/model-format.md), "
                "print it and add it to --stats-json under \"storage\", e.g. --check-storage");
+  app.add_flag("--check-holes", opt.checkHoles,
+               "after writing, count the cells of the model as stored whose patch takes the other sign than "
+               "the corners somewhere on a face no neighbouring patch continues (a hole rays see through; "
+               "33x33 points per face, docs/method.md \"Holes\"), print it and add it to --stats-json under "
+               "\"holes\", e.g. --check-holes");
   app.add_flag("-q,--quiet", opt.quiet, "no progress bar or summary on stderr, e.g. --quiet");
   try {
     app.parse(argc, argv);

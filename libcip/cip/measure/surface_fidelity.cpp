@@ -308,7 +308,7 @@ std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth,
   return n;
 }
 
-std::int64_t countOpenFaceLeaks(const Model& model, int lattice) {
+std::vector<std::uint32_t> openFaceLeakCells(const Model& model, int lattice) {
   const int n = std::max(2, lattice);
   std::vector<std::uint8_t> leaks(model.cells.size(), 0);
   tbb::parallel_for(std::size_t(0), model.cells.size(), [&](std::size_t c) {
@@ -334,9 +334,14 @@ std::int64_t countOpenFaceLeaks(const Model& model, int lattice) {
         break;
       }
   });
-  std::int64_t count = 0;
-  for (auto l : leaks) count += l;
-  return count;
+  std::vector<std::uint32_t> cells;
+  for (std::size_t c = 0; c < leaks.size(); ++c)
+    if (leaks[c]) cells.push_back(static_cast<std::uint32_t>(c));
+  return cells;
+}
+
+std::int64_t countOpenFaceLeaks(const Model& model, int lattice) {
+  return static_cast<std::int64_t>(openFaceLeakCells(model, lattice).size());
 }
 
 }  // namespace cip

@@ -78,6 +78,8 @@ std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth,
 /// the patch's zero set ends on it: a hole that rays pass through. Needs no reference: marching cubes'
 /// surface never meets an open face.
 std::int64_t countOpenFaceLeaks(const Model& model, int lattice = 33);
+/// The cells countOpenFaceLeaks counts (indices into Model::cells, increasing).
+std::vector<std::uint32_t> openFaceLeakCells(const Model& model, int lattice = 33);
 
 /// Newton steps along the gradient from p (world) onto the surface truth = iso (at most 30; stops when a step
 /// is below 1e-13 or the gradient vanishes). The result is a surface point when it converges, not always the
