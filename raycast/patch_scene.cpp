@@ -6,6 +6,7 @@
 #include <tuple>
 
 #include "cip/patch/ray_patch.h"
+#include "cip/topology/cube_topology.h"
 
 namespace cip::raycast {
 
@@ -26,6 +27,7 @@ struct PatchRayContext {
   double tFar = 0;
   double bestT = 0;  ///< closest hit so far
   std::uint32_t bestCell = 0;
+  std::optional<FaceCap> bestCap;  ///< set when the closest hit closes a hole on an open face
   bool found = false;
 
   PatchRayContext(const PatchScene* s, const Ray& r, double near, double far)
@@ -49,12 +51,19 @@ void patchBounds(const RTCBoundsFunctionArguments* args) {
   b->upper_z = roundUpToFloat(hi.z() + 1e-6 * std::abs(hi.z()));
 }
 
-/// First root of the cell's patch on the context's double ray within [tNear, tFar] (the caller's interval,
+/// A cell's answer for a ray: the first root of its patch, or a cap where the ray passes through a hole of
+/// the patch surface on one of the cell's open faces (open_face_cap.h).
+struct CellHit {
+  double t = 0;
+  std::optional<FaceCap> cap;
+};
+
+/// First root or cap of the cell on the context's double ray within [tNear, tFar] (the caller's interval,
 /// not the closest hit so far: each cell's answer is then a function of the ray and the cell alone, whatever
 /// order Embree visits the cells in), or nothing.
 /// A cell whose padded box the ray enters after the closest hit so far is skipped: every root in it would lie
 /// beyond that hit, so skipping it changes no answer.
-std::optional<Root> cellRoot(const PatchRayContext& ctx, std::uint32_t cell) {
+std::optional<CellHit> cellHit(const PatchRayContext& ctx, std::uint32_t cell) {
   const PatchScene& s = *ctx.scene;
   const Vec3 origin = s.frameToLocal(ctx.ray.origin, cell);
   const Vec3 direction =
@@ -62,15 +71,23 @@ std::optional<Root> cellRoot(const PatchRayContext& ctx, std::uint32_t cell) {
   double t0 = 0, t1 = 0;
   if (!clipRayToCell(origin, direction, ctx.tNear, ctx.tFar, t0, t1) || (ctx.found && t0 > ctx.bestT))
     return std::nullopt;
+  const CornerPatch patch = s.patch(cell);
+  const FaceCaps caps =
+      openFaceCaps(patch, s.model().cells[cell].config, origin, direction, ctx.tNear, ctx.tFar,
+                   [&](int face, const Vec3& local) { return s.signAcross(cell, face, local); });
+  if (caps.entry) return CellHit{caps.entry->t, caps.entry};
   RootSearchOptions options;
   options.crossingsOnly = true;  // the surface separates value > isovalue from value < isovalue
-  return intersectRayPatch(s.patch(cell), origin, direction, ctx.tNear, ctx.tFar, options);
+  const auto root = intersectRayPatch(patch, origin, direction, ctx.tNear, ctx.tFar, options);
+  if (root && !(caps.exit && caps.exit->t < root->t)) return CellHit{root->t, std::nullopt};
+  if (caps.exit) return CellHit{caps.exit->t, caps.exit};
+  return std::nullopt;
 }
 
 void patchIntersect(const RTCIntersectFunctionNArguments* args) {
   if (args->N != 1 || !args->valid[0]) return;
   auto* ctx = reinterpret_cast<PatchRayContext*>(args->context);
-  auto root = cellRoot(*ctx, args->primID);
+  auto root = cellHit(*ctx, args->primID);
   // Closest root wins; equal roots (a point on a shared face) go to the lower cell index, independent of
   // visit order.
   if (!root) return;
@@ -78,6 +95,7 @@ void patchIntersect(const RTCIntersectFunctionNArguments* args) {
     return;
   ctx->bestT = root->t;
   ctx->bestCell = args->primID;
+  ctx->bestCap = root->cap;
   ctx->found = true;
   auto* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
   rh->ray.tfar = roundUpToFloat(root->t);
@@ -95,7 +113,7 @@ void patchOccluded(const RTCOccludedFunctionNArguments* args) {
   if (args->N != 1 || !args->valid[0]) return;
   auto* ctx = reinterpret_cast<PatchRayContext*>(args->context);
   if (ctx->found) return;
-  if (cellRoot(*ctx, args->primID)) {
+  if (cellHit(*ctx, args->primID)) {
     ctx->found = true;
     reinterpret_cast<RTCRay*>(args->ray)->tfar = -std::numeric_limits<float>::infinity();
   }
@@ -161,19 +179,40 @@ Ray PatchScene::toFrame(const Ray& ray) const {
   return r;
 }
 
-SurfaceHit PatchScene::surfaceAt(const Ray& ray, const Ray& frameRay, double t, std::uint32_t cell) const {
+int PatchScene::signAcross(std::uint32_t cell, int face, const Vec3& local) const {
+  const ModelCell& c = model_.cells[cell];
+  const int axis = cube::faceAxis(face), step = cube::faceSide(face) == 0 ? -1 : 1;
+  std::array<std::int64_t, 3> index = {c.index[0], c.index[1], c.index[2]};
+  index[axis] += step;
+  const std::int64_t neighbour = model_.findCell(index[0], index[1], index[2]);
+  if (neighbour >= 0) {
+    Vec3 there = local;
+    there[axis] -= step;  // the same point in the neighbour's local coordinates
+    const double value = patch(static_cast<std::uint32_t>(neighbour)).value(there);
+    if (value != 0) return value > 0 ? 1 : -1;
+  }
+  return ((c.config >> cube::faceVertex(face, 0)) & 1) ? 1 : -1;
+}
+
+SurfaceHit PatchScene::surfaceAt(const Ray& ray, const Ray& frameRay, double t, std::uint32_t cell,
+                                 const std::optional<FaceCap>& cap) const {
   SurfaceHit hit;
   hit.t = t;
   hit.position = ray.origin + t * ray.direction;
   hit.id = cell;
   hit.hasCellIndex = true;
   hit.cellIndex = model_.cells[cell].index;
+  const Mat3& jt = gradientToWorld_;
+  if (cap) {  // a piece of an open face closing a hole of the patch surface: flat, the face's normal
+    hit.normal = (jt * capNormal(*cap)).normalized();
+    if (curvature_) hit.meanCurvature = 0;
+    return hit;
+  }
   const Vec3 local =
       frameToLocal(frameRay.origin, cell) + t * frameRay.direction.cwiseQuotient(model_.geometry.spacing);
   const CornerPatch p = patch(cell);
   const PatchDerivatives d = curvature_ ? p.derivatives(local) : p.valueAndGradient(local);
   // local = (frame - origin) / spacing - cell and frame = world_.toFrame(world).
-  const Mat3& jt = gradientToWorld_;
   const Vec3 g = jt * d.gradient;
   const double gn = g.norm();
   hit.normal = gn > 0 ? Vec3(g / gn) : Vec3(-ray.direction);
@@ -191,7 +230,7 @@ bool PatchScene::intersect(const Ray& worldRay, double tNear, double tFar, Surfa
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(scene_, &ctx.embree, &rh);
   if (!ctx.found) return false;
-  hit = surfaceAt(worldRay, ray, ctx.bestT, ctx.bestCell);
+  hit = surfaceAt(worldRay, ray, ctx.bestT, ctx.bestCell, ctx.bestCap);
   return true;
 }
 

@@ -4,10 +4,12 @@
 /// derivatives. Rays come in world coordinates and are mapped into the model's axis-aligned grid frame
 /// (world_transform.h), so the patches stay exact under any rotation, flip or shear of the volume.
 #pragma once
+#include <optional>
 #include <vector>
 
 #include "cip/model/model.h"
 #include "cip/patch/corner_patch.h"
+#include "cip/patch/open_face_cap.h"
 #include "scene.h"
 
 namespace cip::raycast {
@@ -48,6 +50,10 @@ class PatchScene : public RenderScene {
   Vec3 frameToLocal(const Vec3& frame, std::uint32_t cell) const;
   /// The map from the model's grid frame (where the BVH and the patches are) to the world of the rays.
   const WorldTransform& world() const { return world_; }
+  /// Sign (+1 above the isovalue, -1 below) of the region across `face` of cell `cell` at `local` (cell-local
+  /// coordinates of a point on the face): the neighbouring cell's patch there when that cell is non-empty
+  /// (and not zero there), else the face corners' sign (open_face_cap.h).
+  int signAcross(std::uint32_t cell, int face, const Vec3& local) const;
 
  private:
   void build();  ///< patches, bounds and BVH (run inside the options' thread arena)
@@ -57,7 +63,10 @@ class PatchScene : public RenderScene {
   /// Surface data at the hit of cell `cell` at ray parameter t (the ray in the world and in the grid frame):
   /// position, normal (world gradient direction) and, if the scene was built with curvature, mean curvature
   /// in world units from the exact gradient and Hessian.
-  SurfaceHit surfaceAt(const Ray& worldRay, const Ray& frameRay, double t, std::uint32_t cell) const;
+  /// At a cap (a hole of the patch surface closed by a piece of an open face, open_face_cap.h) the normal is
+  /// the face's, and the curvature 0.
+  SurfaceHit surfaceAt(const Ray& worldRay, const Ray& frameRay, double t, std::uint32_t cell,
+                       const std::optional<FaceCap>& cap) const;
 
   const Model& model_;
   WorldTransform world_;
