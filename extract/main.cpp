@@ -76,9 +76,9 @@ cip::BuildOptions buildOptions(const Options& opt) {
   if ((build.reconstruction == cip::Reconstruction::Central8 ||
        build.reconstruction == cip::Reconstruction::Mask || opt.labels || opt.label) &&
       (build.method != cip::PatchMethod::Fitted || build.normals != cip::NormalMode::Gradient)) {
-    throw cip::Error((opt.labels || opt.label ? std::string("--labels and --label")
+    throw cip::Error((opt.labels || opt.label ? std::string("--labels or --label")
                                               : "--reconstruction " + opt.reconstruction) +
-                     " apply to --method fitted with --normals gradient (the reference of sampled data)");
+                     " applies to --method fitted with --normals gradient (the reference of sampled data)");
   }
   if (opt.labels && opt.label) throw cip::Error("give --labels or --label N, not both");
   build.label = opt.label;

@@ -54,22 +54,26 @@ struct BlockScratch {
   std::vector<double> sum[2];     ///< the block's result per Gaussian
 };
 
-/// G * in over the block: `in` covers the region (dims r), the block starts at `o` in it (dims b).
+/// G * in over the block: `in` covers the region (dims r), the block starts at `o` in it (dims b), and the
+/// region reaches the kernel's radius beyond the block on every side (classBlock pads it).
 void separableBlur(const GaussianTaps& g, const Dims& r, const Dims& o, const Dims& b, BlockScratch& s,
                    std::vector<double>& out) {
   const int R = g.radius;
   const double* w = g.weights.data() + R;
-  auto clampTo = [](std::int64_t v, std::int64_t n) { return std::min(std::max<std::int64_t>(v, 0), n - 1); };
-  // x: region rows, block columns.
-  s.x.assign(static_cast<std::size_t>(b[0] * r[1] * r[2]), 0.0);
+  // x: region rows, block columns. A row of one value (most, away from the surface) stays that value.
+  s.x.resize(static_cast<std::size_t>(b[0] * r[1] * r[2]));
   for (std::int64_t k = 0; k < r[2]; ++k)
     for (std::int64_t j = 0; j < r[1]; ++j) {
       const double* row = &s.in[static_cast<std::size_t>(r[0] * (j + r[1] * k))];
       double* dst = &s.x[static_cast<std::size_t>(b[0] * (j + r[1] * k))];
-      for (std::int64_t i = 0; i < b[0]; ++i) {
-        double v = 0;
-        for (int t = -R; t <= R; ++t) v += w[t] * row[clampTo(o[0] + i + t, r[0])];
-        dst[i] = v;
+      if (std::all_of(row, row + r[0], [&](double v) { return v == row[0]; })) {
+        std::fill(dst, dst + b[0], row[0]);
+        continue;
+      }
+      std::fill(dst, dst + b[0], 0.0);
+      for (int t = -R; t <= R; ++t) {
+        const double* src = row + o[0] + t;
+        for (std::int64_t i = 0; i < b[0]; ++i) dst[i] += w[t] * src[i];
       }
     }
   // y: block columns and rows, region slices.
@@ -78,7 +82,7 @@ void separableBlur(const GaussianTaps& g, const Dims& r, const Dims& o, const Di
     for (std::int64_t j = 0; j < b[1]; ++j) {
       double* dst = &s.xy[static_cast<std::size_t>(b[0] * (j + b[1] * k))];
       for (int t = -R; t <= R; ++t) {
-        const double* src = &s.x[static_cast<std::size_t>(b[0] * (clampTo(o[1] + j + t, r[1]) + r[1] * k))];
+        const double* src = &s.x[static_cast<std::size_t>(b[0] * (o[1] + j + t + r[1] * k))];
         for (std::int64_t i = 0; i < b[0]; ++i) dst[i] += w[t] * src[i];
       }
     }
@@ -86,7 +90,7 @@ void separableBlur(const GaussianTaps& g, const Dims& r, const Dims& o, const Di
   out.assign(static_cast<std::size_t>(b[0] * b[1] * b[2]), 0.0);
   for (std::int64_t k = 0; k < b[2]; ++k)
     for (int t = -R; t <= R; ++t) {
-      const double* src = &s.xy[static_cast<std::size_t>(b[0] * b[1] * clampTo(o[2] + k + t, r[2]))];
+      const double* src = &s.xy[static_cast<std::size_t>(b[0] * b[1] * (o[2] + k + t))];
       double* dst = &out[static_cast<std::size_t>(b[0] * b[1] * k)];
       for (std::int64_t n = 0; n < b[0] * b[1]; ++n) dst[n] += w[t] * src[n];
     }
@@ -107,39 +111,46 @@ void classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
                 const Dims& b, BlockScratch& s, std::vector<double>& out) {
   const Dims& dims = grid.geometry.dims;
   const int R = kernel().radius();
-  Dims rlo, r, o;
-  for (int a = 0; a < 3; ++a) {
-    rlo[a] = std::max<std::int64_t>(0, lo[a] - R);
-    r[a] = std::min(dims[a], lo[a] + b[a] + R) - rlo[a];
-    o[a] = lo[a] - rlo[a];
-  }
-  s.cls.resize(static_cast<std::size_t>(r[0] * r[1] * r[2]));
-  for (std::int64_t k = 0; k < r[2]; ++k)
-    for (std::int64_t j = 0; j < r[1]; ++j)
-      for (std::int64_t i = 0; i < r[0]; ++i)
-        s.cls[static_cast<std::size_t>(i + r[0] * (j + r[1] * k))] =
-            classOf(grid.at(rlo[0] + i, rlo[1] + j, rlo[2] + k));
-  const std::size_t blockPoints = static_cast<std::size_t>(b[0] * b[1] * b[2]);
-  auto regionClass = [&](std::int64_t i, std::int64_t j, std::int64_t k) {
-    return s.cls[static_cast<std::size_t>(o[0] + i + r[0] * (o[1] + j + r[1] * (o[2] + k)))];
+  auto clampTo = [](std::int64_t v, std::int64_t n) { return std::min(std::max<std::int64_t>(v, 0), n - 1); };
+  auto classAt = [&](std::int64_t i, std::int64_t j, std::int64_t k) {  // block-local, clamped into the grid
+    return classOf(
+        grid.at(clampTo(lo[0] + i, dims[0]), clampTo(lo[1] + j, dims[1]), clampTo(lo[2] + k, dims[2])));
   };
+  const std::size_t blockPoints = static_cast<std::size_t>(b[0] * b[1] * b[2]);
+  out.resize(blockPoints);
   // The classes within reach of the block's points decide whether its field is needed.
   const std::int64_t reach = stencilReach();
   bool mixed = false;
-  const std::int64_t first = s.cls[0];
-  for (std::int64_t k = std::max(-o[2], -reach); k < std::min(r[2] - o[2], b[2] + reach) && !mixed; ++k)
-    for (std::int64_t j = std::max(-o[1], -reach); j < std::min(r[1] - o[1], b[1] + reach) && !mixed; ++j)
-      for (std::int64_t i = std::max(-o[0], -reach); i < std::min(r[0] - o[0], b[0] + reach); ++i)
-        if (regionClass(i, j, k) != first) {
+  const std::int64_t first = classAt(-reach, -reach, -reach);
+  for (std::int64_t k = -reach; k < b[2] + reach && !mixed; ++k)
+    for (std::int64_t j = -reach; j < b[1] + reach && !mixed; ++j)
+      for (std::int64_t i = -reach; i < b[0] + reach; ++i)
+        if (classAt(i, j, k) != first) {
           mixed = true;
           break;
         }
-  out.resize(blockPoints);
   if (!mixed) {
     std::fill(out.begin(), out.end(), first == target ? 1.0 : -1.0);
     return;
   }
-  std::vector<std::int64_t> classes{first};  // in order of first appearance: few, so a linear search
+  // The region: the block and R points around it, beyond the grid the nearest grid point's class.
+  Dims r, o;
+  for (int a = 0; a < 3; ++a) {
+    r[a] = b[a] + 2 * R;
+    o[a] = R;
+  }
+  s.cls.resize(static_cast<std::size_t>(r[0] * r[1] * r[2]));
+  for (std::int64_t k = 0; k < r[2]; ++k)
+    for (std::int64_t j = 0; j < r[1]; ++j) {
+      const double* row = &grid.values[static_cast<std::size_t>(
+          grid.index(0, clampTo(lo[1] - R + j, dims[1]), clampTo(lo[2] - R + k, dims[2])))];
+      std::int64_t* dst = &s.cls[static_cast<std::size_t>(r[0] * (j + r[1] * k))];
+      for (std::int64_t i = 0; i < r[0]; ++i) dst[i] = classOf(row[clampTo(lo[0] - R + i, dims[0])]);
+    }
+  auto regionClass = [&](std::int64_t i, std::int64_t j, std::int64_t k) {
+    return s.cls[static_cast<std::size_t>(o[0] + i + r[0] * (o[1] + j + r[1] * (o[2] + k)))];
+  };
+  std::vector<std::int64_t> classes{s.cls[0]};  // in order of first appearance: few, so a linear search
   for (const std::int64_t c : s.cls)
     if (c != classes.back() && std::find(classes.begin(), classes.end(), c) == classes.end())
       classes.push_back(c);
