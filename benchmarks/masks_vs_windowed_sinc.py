@@ -19,7 +19,8 @@ Label maps: two touching half-balls labelled 1 and 2 with background 0: how far 
 surfaces are on their shared interface (gap or overlap, voxels).
 
 Usage: PYTHONPATH=build/python /usr/bin/python3 benchmarks/masks_vs_windowed_sinc.py [--pictures]
-Writes benchmarks/results/masks/report.md (and, with --pictures, PNGs rendered by build/raycast/raycast).
+Writes benchmarks/results/masks.md (and, with --pictures, benchmarks/results/masks-torus-*.png rendered by
+build/raycast/raycast).
 """
 import argparse
 import os
@@ -35,7 +36,8 @@ from vtk.util import numpy_support
 import cip
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-OUT = os.path.join(ROOT, "benchmarks", "results", "masks")
+OUT = os.path.join(ROOT, "benchmarks", "results")
+REPORT = os.path.join(OUT, "masks.md")
 
 
 # ---- shapes: signed distance (negative inside) and unit normal at the nearest surface point ----
@@ -254,7 +256,7 @@ def label_gap():
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "labels.nrrd")
         write_nrrd(path, labels)
-        subprocess.run([os.path.join(ROOT, "build", "extract", "extract"), path, "--labels", "-q", "-o",
+        subprocess.run([os.path.join(ROOT, "build", "extract", "extract"), path, "--labels", "-q", "--model-version", "1", "-o",
                         os.path.join(tmp, "l.cip")], check=True)
         m1 = cip.load(os.path.join(tmp, "l-label1.cip"))
         m2 = cip.load(os.path.join(tmp, "l-label2.cip"))
@@ -262,21 +264,26 @@ def label_gap():
     v2, _, _ = m2.patch_mesh(subdiv=4)
     # Vertices of label 1 on the interface: inside label 2's cells (finite value there) and away from the
     # background (more than 2 voxels inside the ball), where only labels 1 and 2 meet.
-    inner1 = np.linalg.norm(v1 - centre, axis=1) < 12
-    val, grad = m2.evaluate(v1[inner1])
-    ok = np.isfinite(val)
-    gap12 = np.abs(val[ok]) / np.maximum(np.linalg.norm(grad[ok], axis=1), 1e-12)
-    inner2 = np.linalg.norm(v2 - centre, axis=1) < 12
-    val2, grad2 = m1.evaluate(v2[inner2])
-    ok2 = np.isfinite(val2)
-    gap21 = np.abs(val2[ok2]) / np.maximum(np.linalg.norm(grad2[ok2], axis=1), 1e-12)
-    # Triple-junction zone: within 2 voxels of the ball's surface.
-    outer1 = (np.linalg.norm(v1 - centre, axis=1) >= 12) & (np.abs((v1 - centre) @ normal) < 1.5)
-    val3, grad3 = m2.evaluate(v1[outer1])
-    ok3 = np.isfinite(val3)
-    gap_junction = np.abs(val3[ok3]) / np.maximum(np.linalg.norm(grad3[ok3], axis=1), 1e-12)
-    return (np.max(gap12), np.max(gap21), int(ok.sum() + ok2.sum()),
-            np.max(gap_junction) if len(gap_junction) else float("nan"), int(ok3.sum()))
+    def apart(points, a, b):
+        """How far apart the zero sets of models a and b are at points near both (first-order distances of
+        each from the point, signed along the gradient: 0 when the surfaces coincide there)."""
+        va, ga = a.evaluate(points)
+        vb, gb = b.evaluate(points)
+        ok = np.isfinite(va) & np.isfinite(vb)
+        da = va[ok] / np.maximum(np.linalg.norm(ga[ok], axis=1), 1e-300)
+        db = vb[ok] / np.maximum(np.linalg.norm(gb[ok], axis=1), 1e-300)
+        return np.abs(da + db), int(ok.sum())
+
+    # Label 1's vertices on the interface (where label 2's patches are), by their depth inside the ball (how
+    # far the third class, the background, is).
+    va, _ = m2.evaluate(v1)
+    on = np.isfinite(va)
+    depth = 14 - np.linalg.norm(v1 - centre, axis=1)
+    bins = []
+    for lo, hi in ((8, 99), (4, 8), (2, 4), (-1, 2)):
+        gap, count = apart(v1[on & (depth >= lo) & (depth < hi)], m1, m2)
+        bins.append((lo, hi, float(np.max(gap)) if count else float("nan"), count))
+    return bins
 
 
 def write_nrrd(path, array):
@@ -344,7 +351,7 @@ def pictures(shape, mask):
         eye = c + np.array([0.6, -1.0, 0.7]) / np.linalg.norm([0.6, -1.0, 0.7]) * 3.2 * shape.extent
         cam = ["--eye", ",".join(map(str, eye)), "--look", ",".join(map(str, c)), "--size", "480x360", "-q"]
         for name, args in (("cip-mask", [model]), ("cip-plain", [plain]), ("vtk-windowed-sinc", ["--mesh", ply])):
-            png = os.path.join(OUT, f"{tag}-{name}.png")
+            png = os.path.join(OUT, f"masks-{tag}-{name}.png")
             subprocess.run([raycast, *args, "-o", os.path.join(tmp, "x.exr"), "--png", png, *cam], check=True)
 
 
@@ -376,7 +383,7 @@ def main():
     gaps = label_gap()
     real = tooth()
     os.makedirs(OUT, exist_ok=True)
-    with open(os.path.join(OUT, "report.md"), "w") as f:
+    with open(REPORT, "w") as f:
         f.write("# Masks: cip's mask reference against VTK discrete flying edges + windowed sinc\n\n")
         f.write("Made by `benchmarks/masks_vs_windowed_sinc.py` (see its header for the method). Distances in "
                 "voxels, normal errors in degrees, means over mesh vertices; max = largest vertex distance; "
@@ -391,19 +398,23 @@ def main():
         mc, mv = sums["cip"] / smooth, sums["vtk"] / smooth
         f.write(f"\nMean over the {smooth} smooth shapes: cip {mc[0]:.4f} voxel, {mc[2]:.2f}°; windowed sinc "
                 f"{mv[0]:.4f} voxel, {mv[2]:.2f}° (ratio {mc[0] / mv[0]:.2f} and {mc[2] / mv[2]:.2f}).\n\n")
-        f.write("Label map (two half-balls, labels 1 and 2, `extract --labels`): on the interface away from the "
-                f"background the two labels' surfaces lie at most {gaps[0]:.2e} / {gaps[1]:.2e} voxel apart "
-                f"({gaps[2]} vertices); within 1.5 voxels of the triple junction with the background at most "
-                f"{gaps[3]:.3f} voxel ({gaps[4]} vertices).\n\n")
+        f.write("Label map (two half-balls of radius 14, labels 1 and 2, background 0, `extract --labels`): how "
+                "far apart the two labels' surfaces lie on their interface (largest over label 1's patch-mesh "
+                "vertices there, voxels), by the vertices' depth inside the ball, i.e. their distance from the "
+                "third class:\n\n| depth (voxels) | largest gap or overlap | vertices |\n|---|---|---|\n")
+        for lo, hi, gap, count in gaps:
+            f.write(f"| {max(lo, 0)}–{hi if hi < 99 else ''} | {gap:.2e} | {count} |\n")
+        f.write("\n")
         if real:
             f.write("Real segmentation (CT tooth > 128, 103x94x161), mean distance to cip's surface of the CT "
                     f"at 128: cip {real['cip']:.4f} voxel, windowed sinc {real['vtk']:.4f}; wrong side: cip "
                     f"{real['cip_wrong']}, sinc {real['vtk_wrong']}; seconds cip {real['cip_s']:.3f}, sinc "
                     f"{real['vtk_s']:.3f}.\n")
         if args.pictures:
-            f.write("\nPictures (torus 20/7): `torus-cip-mask.png`, `torus-cip-plain.png`, "
-                    "`torus-vtk-windowed-sinc.png`, same camera.\n")
-    print(open(os.path.join(OUT, "report.md")).read())
+            f.write("\nPictures (torus 20/7, same camera): ![cip, mask reference](masks-torus-cip-mask.png) "
+                    "![cip, the samples as they are](masks-torus-cip-plain.png) "
+                    "![VTK flying edges + windowed sinc](masks-torus-vtk-windowed-sinc.png)\n")
+    print(open(REPORT).read())
 
 
 if __name__ == "__main__":
