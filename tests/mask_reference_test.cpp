@@ -196,3 +196,14 @@ TEST(LabelMap, TouchingLabelsShareTheirSurface) {
   EXPECT_EQ(disagree, 0);
   EXPECT_LT(largest, 1e-9);
 }
+
+// The field, and so the model, does not depend on the number of threads.
+TEST(MaskReference, ThreadCountChangesNoByte) {
+  const DenseGrid m = mask(37, torus(Vec3(18.2, 17.7, 18.4), 10, 4));
+  BuildOptions options;
+  options.isovalue = 127.5;
+  options.threads = 1;
+  const std::vector<std::uint8_t> one = serializeModel(buildModel(m, options));
+  options.threads = 2;
+  EXPECT_EQ(serializeModel(buildModel(m, options)), one);
+}

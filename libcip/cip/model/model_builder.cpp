@@ -124,8 +124,12 @@ Model buildModel(const DenseGrid& grid, const BuildOptions& options) {
 
 Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
                  const BuildOptions& options, const std::string& source) {
-  if (followsMask(bricks, options)) return buildMask(geometry, bricks, options, source);
-  return buildSampled(geometry, bricks, options, source);
+  // The detection and the mask's field run in parallel too, bounded as the passes are.
+  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
+  return arena.execute([&] {
+    return followsMask(bricks, options) ? buildMask(geometry, bricks, options, source)
+                                        : buildSampled(geometry, bricks, options, source);
+  });
 }
 
 namespace {
