@@ -39,7 +39,8 @@ struct Options {
   std::string space;  ///< --space: world frame of the outputs (empty = the volume's own)
   std::optional<double> iso;
   int resolution = 64, subdiv = 4, threads = 0, modelVersion = 2;
-  bool quiet = false, skipNonFinite = false, checkStorage = false, checkHoles = false;
+  bool quiet = false, skipNonFinite = false, checkStorage = false, checkHoles = false, labels = false;
+  std::optional<std::int64_t> label;  ///< --label N
   // raw input
   std::string dims, type, endian = "little", grid;
   int frame = -1;  // 4-D NIfTI / MetaImage: the frame to read
@@ -73,11 +74,15 @@ cip::BuildOptions buildOptions(const Options& opt) {
   }
   build.method = opt.method == "fitted" ? cip::PatchMethod::Fitted : cip::PatchMethod::Paper;
   build.reconstruction = cip::parseReconstruction(opt.reconstruction);
-  if (build.reconstruction == cip::Reconstruction::Central8 &&
+  if ((build.reconstruction == cip::Reconstruction::Central8 ||
+       build.reconstruction == cip::Reconstruction::Mask || opt.labels || opt.label) &&
       (build.method != cip::PatchMethod::Fitted || build.normals != cip::NormalMode::Gradient)) {
-    throw cip::Error("--reconstruction " + opt.reconstruction +
+    throw cip::Error((opt.labels || opt.label ? std::string("--labels or --label")
+                                              : "--reconstruction " + opt.reconstruction) +
                      " applies to --method fitted with --normals gradient (the reference of sampled data)");
   }
+  if (opt.labels && opt.label) throw cip::Error("give --labels or --label N, not both");
+  build.label = opt.label;
   build.skipNonFinite = opt.skipNonFinite;
   build.threads = opt.threads;
   return build;
@@ -187,6 +192,9 @@ void printSummary(const Options& opt, const cip::BuildOptions& build, const cip:
                  "that is %.2f %% of the cells: the data look too steep for the central8 reconstruction; "
                  "--reconstruction monotone follows steps\n",
                  100.0 * static_cast<double>(unresolved) / static_cast<double>(model.cells.size()));
+  if (model.reconstruction == cip::Reconstruction::Mask &&
+      build.reconstruction == cip::Reconstruction::Auto && !build.label)
+    std::fprintf(stderr, "reference: mask (the samples next to the surface take two values only)\n");
   if (model.reconstruction && build.reconstruction == cip::Reconstruction::Auto &&
       stats.fitting->sampling.cells > 0)
     std::fprintf(stderr,
@@ -246,6 +254,31 @@ cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options,
   return model;
 }
 
+/// `path` with -labelN before its extension (out.cip -> out-label3.cip), for --labels.
+std::string labelPath(const std::string& path, std::int64_t label) {
+  const std::filesystem::path p(path);
+  const std::string stem = p.stem().string() + "-label" + std::to_string(label) + p.extension().string();
+  return p.has_parent_path() ? (p.parent_path() / stem).string() : stem;
+}
+
+/// The non-zero labels of a label map, in increasing order; throws when a sample is not an integer.
+std::vector<std::int64_t> labelsOf(const cip::SparseVolume& volume) {
+  std::vector<std::int64_t> labels;
+  for (const cip::GridBrick& b : volume.bricks) {
+    for (const double v : b.grid->values) {
+      if (!(std::abs(v) < 9e15) || v != std::round(v))
+        throw cip::Error("--labels needs a label map (integer samples); found " + std::to_string(v));
+      const auto l = static_cast<std::int64_t>(v);
+      if (l != 0 && (labels.empty() || labels.back() != l) &&
+          !std::binary_search(labels.begin(), labels.end(), l))
+        labels.insert(std::upper_bound(labels.begin(), labels.end(), l), l);
+    }
+  }
+  return labels;
+}
+
+int runOne(const Options& opt, const Input& in, cip::BuildOptions options, cip::ExtractStats stats);
+
 int run(const Options& opt) {
   // --threads bounds every parallel part of the run (reading, sampling, the range scan), not the build alone.
   std::optional<tbb::global_control> threadLimit;
@@ -254,18 +287,41 @@ int run(const Options& opt) {
   stats.input = opt.input;
   auto t0 = Clock::now();
   cip::BuildOptions options = buildOptions(opt);
-  cip::BuildTimings timings;
-  options.timings = &timings;
   // Mesh names the writers refuse fail here, before the build.
   if (!opt.mcMesh.empty()) cip::meshFormatOf(opt.mcMesh);
   if (!opt.patchMesh.empty()) cip::meshFormatOf(opt.patchMesh);
-  Input in = readInput(opt, options, stats);
+  cip::BuildOptions readOptions = options;  // the apron the bricks need
+  if (opt.labels) readOptions.label = 0;
+  Input in = readInput(opt, readOptions, stats);
   // A --space the volume cannot be converted to fails here, before the build.
   stats.world = cip::WorldTransform::of(in.volume.geometry, outputSpace(opt));
   stats.dims = in.volume.geometry.dims;
   stats.seconds["read"] = secondsSince(t0);
 
-  options.isovalue = isovalue(opt, in);
+  options.isovalue = opt.labels || opt.label ? 0.0 : isovalue(opt, in);
+  if (opt.labels) {
+    const std::vector<std::int64_t> labels = labelsOf(in.volume);
+    if (labels.empty()) throw cip::Error(opt.input + ": --labels found no non-zero label");
+    for (const std::int64_t label : labels) {
+      Options one = opt;
+      one.labels = false;
+      one.label = label;
+      one.output = labelPath(opt.output, label);
+      if (!opt.mcMesh.empty()) one.mcMesh = labelPath(opt.mcMesh, label);
+      if (!opt.patchMesh.empty()) one.patchMesh = labelPath(opt.patchMesh, label);
+      if (!opt.statsJson.empty()) one.statsJson = labelPath(opt.statsJson, label);
+      options.label = label;
+      runOne(one, in, options, stats);
+    }
+    return 0;
+  }
+  return runOne(opt, in, options, stats);
+}
+
+/// Builds the model `options` ask for from the volume read, writes it and what goes with it.
+int runOne(const Options& opt, const Input& in, cip::BuildOptions options, cip::ExtractStats stats) {
+  cip::BuildTimings timings;
+  options.timings = &timings;
   stats.isovalue = options.isovalue;
   stats.normals = opt.normals;
   stats.central = opt.central;
@@ -337,11 +393,24 @@ int main(int argc, char** argv) {
   app.add_option(
          "--reconstruction", opt.reconstruction,
          "fitted method, gradient normals: how the reference interpolant of the samples gets its "
-         "derivatives: auto (default: central8 where the samples near the surface are smooth at the "
-         "grid's scale, else monotone), monotone (limited central differences, safe next to steps as in "
-         "CT) or central8 (8th-order differences: far better normals on smooth, well-sampled data; "
-         "overshoots at steps and on under-sampled data; docs/method.md), e.g. --reconstruction monotone")
-      ->check(CLI::IsMember({"auto", "monotone", "central8"}));
+         "derivatives: auto (default: mask on two-valued data, central8 where the samples near the surface "
+         "are smooth at the grid's scale, else monotone), monotone (limited central differences, safe next "
+         "to steps as in "
+         "CT), central8 (8th-order differences: far better normals on smooth, well-sampled data; "
+         "overshoots at steps and on under-sampled data; docs/method.md) or mask (two-valued data such as "
+         "segmentation masks: the smoothed indicator of the inside voxels, every voxel centre kept on its "
+         "side; "
+         "auto picks it when the samples next to the surface take two values only), e.g. --reconstruction "
+         "monotone")
+      ->check(CLI::IsMember({"auto", "monotone", "central8", "mask"}));
+  app.add_flag(
+      "--labels", opt.labels,
+      "label map (integer volume): one model per non-zero label, each the surface of the voxels with "
+      "that label, written to OUTPUT with -labelN before the extension (also the meshes and "
+      "--stats-json); touching labels' surfaces meet (docs/method.md), e.g. --labels");
+  app.add_option("--label", opt.label,
+                 "label map: the surface of the voxels with label N only (written to OUTPUT as given), e.g. "
+                 "--label 3");
   app.add_option("--resolution", opt.resolution,
                  "analytic fields: cells per axis over [-1,1]^3 (default 64), e.g. --resolution 128")
       ->check(CLI::Range(1, 4096));

@@ -5,6 +5,8 @@
 // Each test in a folder of its own.
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <filesystem>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -378,4 +380,76 @@ TEST(ExtractCli, CheckHolesListsTheLeakingCellsOfTheStoredModel) {
   r = test::run(kExtract + " sphere --resolution 16 -o " + model + " --stats-json " + json);
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_FALSE(nlohmann::json::parse(test::slurp(json)).contains("holes"));
+}
+
+// A uint8 mask: auto takes the mask reference and says so; --labels writes one model per non-zero label,
+// named after the output, each the library's model of that label; --label N one; bad label requests fail
+// clearly.
+TEST(ExtractCli, MasksAndLabelMaps) {
+  test::ScratchDir dir;
+  const std::int64_t n = 24;
+  std::string bytes(static_cast<std::size_t>(n * n * n), '\0');
+  DenseGrid labels;
+  labels.allocate({n, n, n});
+  for (std::int64_t k = 0; k < n; ++k)
+    for (std::int64_t j = 0; j < n; ++j)
+      for (std::int64_t i = 0; i < n; ++i) {
+        const double x = static_cast<double>(i), y = static_cast<double>(j), z = static_cast<double>(k);
+        const double r = std::hypot(x - 11.6, y - 12.3, z - 11.9);
+        const int label = r < 8 ? (x + 0.4 * y < 15 ? 1 : 3) : 0;
+        bytes[static_cast<std::size_t>(i + n * (j + n * k))] = static_cast<char>(label);
+        labels.at(i, j, k) = label;
+      }
+  const std::string raw = dir.file("labels.raw");
+  test::writeAll(raw, bytes);
+  const std::string input = raw + " --dims 24,24,24 --type uint8";
+
+  // Three values next to the surface at 0.5 (0, 1 and 3): not a mask for auto, but --reconstruction mask
+  // takes the two sides of the isovalue as the two classes.
+  auto r = test::run(kExtract + " " + input + " --iso 0.5 -o " + dir.file("auto.cip"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.err.find("reference: mask"), std::string::npos) << r.err;
+  EXPECT_NE(readModel(dir.file("auto.cip")).reconstruction, Reconstruction::Mask);
+  r = test::run(kExtract + " " + input + " --iso 0.5 --reconstruction mask -q -o " + dir.file("mask.cip"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(readModel(dir.file("mask.cip")).reconstruction, Reconstruction::Mask);
+  // Two values (0 and 1): auto takes the mask reference and says so.
+  for (char& c : bytes) c = c != 0;
+  const std::string maskRaw = dir.file("mask.raw");
+  test::writeAll(maskRaw, bytes);
+  r = test::run(kExtract + " " + maskRaw + " --dims 24,24,24 --type uint8 --iso 0.5 -o " +
+                dir.file("two.cip"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.err.find("reference: mask"), std::string::npos) << r.err;
+  EXPECT_EQ(readModel(dir.file("two.cip")).reconstruction, Reconstruction::Mask);
+
+  r = test::run(kExtract + " " + input + " --labels -q -o " + dir.file("out.cip") + " --patch-mesh " +
+                dir.file("p.ply"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  for (const int label : {1, 3}) {
+    SCOPED_TRACE(label);
+    const std::string name = dir.file("out-label" + std::to_string(label) + ".cip");
+    const Model written = readModel(name);
+    EXPECT_EQ(written.reconstruction, Reconstruction::Mask);
+    BuildOptions o;
+    o.label = label;
+    const Model built = buildModel(labels, o);
+    EXPECT_EQ(written.cells.size(), built.cells.size());
+    EXPECT_TRUE(std::filesystem::exists(dir.file("p-label" + std::to_string(label) + ".ply")));
+  }
+  EXPECT_FALSE(std::filesystem::exists(dir.file("out-label2.cip")));  // no such label
+  r = test::run(kExtract + " " + input + " --label 3 -q -o " + dir.file("three.cip"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(readModel(dir.file("three.cip")).cells.size(),
+            readModel(dir.file("out-label3.cip")).cells.size());
+
+  r = test::run(kExtract + " " + input + " --labels --label 3 -q -o " + dir.file("x.cip"));
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.err.find("not both"), std::string::npos) << r.err;
+  r = test::run(kExtract + " " + input + " --labels --method paper -q -o " + dir.file("x.cip"));
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.err.find("applies to --method fitted"), std::string::npos) << r.err;
+  r = test::run(kExtract + " sphere --resolution 16 --labels -q -o " + dir.file("x.cip"));
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.err.find("label map (integer samples)"), std::string::npos) << r.err;
 }

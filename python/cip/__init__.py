@@ -90,8 +90,8 @@ def extract(volume_or_path, level=None, *, spacing=None, origin=None, method="fi
     volume_or_path: a numeric 3-D array (axis order = x, y, z of the model; spacing and origin place it in the
     world, default 1 and 0) or a file the command reads (.nrrd/.nhdr, .nii/.nii.gz/.hdr/.img, .mha/.mhd, .vdb;
     `grid` names the VDB grid, `frame` the volume of a 4-D NIfTI, NRRD or MetaImage series, from 0). level: the isovalue (default: the middle of an array's range, 0 for level sets; other files need
-    one). method 'fitted' or 'paper', normals 'gradient', 'edge' or 'exact', reconstruction 'auto', 'monotone'
-    or 'central8' as the command's flags. threads: 0 = all. progress: called with the fraction done in [0, 1].
+    one). method 'fitted' or 'paper', normals 'gradient', 'edge' or 'exact', reconstruction 'auto', 'monotone',
+    'central8' or 'mask' as the command's flags (auto takes mask on two-valued data such as segmentation masks). threads: 0 = all. progress: called with the fraction done in [0, 1].
     Runs without the GIL; Ctrl-C stops it (KeyboardInterrupt), as does an exception raised by `progress`.
     NaN or infinite samples at crossed cells raise cip.Error unless skip_nonfinite=True.
     """

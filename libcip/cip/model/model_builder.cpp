@@ -4,10 +4,14 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <optional>
 
 #include "cip/core/error.h"
 #include "cip/model/build_passes.h"
+#include "cip/model/patch_fitting.h"
 #include "cip/patch/patch_coefficients.h"
+#include "cip/reference/mask_reference.h"
 #include "cip/reference/point_hermite.h"
 #include "cip/topology/cube_topology.h"
 
@@ -47,9 +51,69 @@ CornerPatch buildCellPatch(std::uint8_t config, const std::array<IsoVertex, 12>&
 
 int brickApron(const BuildOptions& options) {
   if (options.method == PatchMethod::Fitted && options.normals != NormalMode::Exact)
-    return referenceReach(options.reconstruction);
+    return options.reconstruction == Reconstruction::Mask || options.label
+               ? maskReach()
+               : referenceReach(options.reconstruction);
   return 1;
 }
+
+namespace {
+
+Model buildSampled(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
+                   const BuildOptions& options, const std::string& source);
+
+/// Whether the build follows the smoothed indicator of a mask or label (mask_reference.h): asked for, or
+/// Auto on samples with two values next to the surface in every brick. Throws when asked for without the
+/// fitted construction's reference of the samples.
+bool followsMask(const std::vector<GridBrick>& bricks, const BuildOptions& options) {
+  const bool sampled = options.method == PatchMethod::Fitted && options.normals != NormalMode::Exact;
+  const bool asked = options.label || options.reconstruction == Reconstruction::Mask;
+  if (asked && !sampled)
+    throw Error(
+        "the mask reference (labels, reconstruction mask) needs the fitted method with gradient or edge "
+        "normals");
+  if (asked) return true;
+  if (!sampled || options.reconstruction != Reconstruction::Auto || options.exactField) return false;
+  std::optional<TwoValuedSamples> all;
+  for (const GridBrick& b : bricks) {
+    const TwoValuedSamples t = detectTwoValued(*b.grid, options.isovalue);
+    if (t.points == 0) continue;
+    if (!t.twoValued || (all && (all->below != t.below || all->above != t.above))) return false;
+    all = t;
+  }
+  return all.has_value();
+}
+
+/// The model of the smoothed indicator: each brick's field (smoothMask or smoothClass), built with Central8
+/// derivatives and recorded as Reconstruction::Mask.
+Model buildMask(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
+                const BuildOptions& options, const std::string& source) {
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<DenseGrid> fields(bricks.size());
+  std::vector<GridBrick> fieldBricks = bricks;
+  BuildOptions o = options;
+  o.reconstruction = Reconstruction::Central8;
+  o.label.reset();
+  for (std::size_t b = 0; b < bricks.size(); ++b) {
+    if (options.label) {
+      const std::int64_t label = *options.label;
+      fields[b] = smoothClass(
+          *bricks[b].grid, [](double v) { return static_cast<std::int64_t>(std::llround(v)); }, label);
+    } else {
+      fields[b] = smoothMask(*bricks[b].grid, options.isovalue);
+    }
+    fieldBricks[b].grid = &fields[b];
+  }
+  if (options.label) o.isovalue = 0;
+  const double smoothing = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  Model model = buildSampled(geometry, fieldBricks, o, source);
+  model.reconstruction = Reconstruction::Mask;
+  if (options.fittingStats) options.fittingStats->reconstruction = Reconstruction::Mask;
+  if (options.timings) options.timings->reference += smoothing;
+  return model;
+}
+
+}  // namespace
 
 Model buildModel(const DenseGrid& grid, const BuildOptions& options) {
   GridBrick brick;
@@ -60,6 +124,19 @@ Model buildModel(const DenseGrid& grid, const BuildOptions& options) {
 
 Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
                  const BuildOptions& options, const std::string& source) {
+  // The detection and the mask's field run in parallel too, bounded as the passes are.
+  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
+  return arena.execute([&] {
+    return followsMask(bricks, options) ? buildMask(geometry, bricks, options, source)
+                                        : buildSampled(geometry, bricks, options, source);
+  });
+}
+
+namespace {
+
+/// buildModel of the samples as they are.
+Model buildSampled(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
+                   const BuildOptions& options, const std::string& source) {
   if (options.normals == NormalMode::Exact && !options.exactField) {
     throw Error("exact normals need an analytic field; sampled volumes take gradient or edge normals");
   }
@@ -108,5 +185,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
   progress.set(1.0);
   return model;
 }
+
+}  // namespace
 
 }  // namespace cip

@@ -6,6 +6,7 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -50,7 +51,15 @@ struct BuildOptions {
   /// (reconstruction_choice.h; docs/method.md). Bricks (sparse volumes) need referenceReach(reconstruction)
   /// points around their cells for the model to be the whole volume's; with fewer, each brick's samples are
   /// extended at its border, and the patches still join.
+  /// Reconstruction::Mask (or Auto on samples that take two values next to the surface, detectTwoValued)
+  /// builds the model of the mask's smoothed indicator (mask_reference.h) instead of the samples: same cells,
+  /// same signs at every grid point, no terraces. Bricks then need maskReach() points around their cells
+  /// (brickApron) for the model to be the whole volume's.
   Reconstruction reconstruction = Reconstruction::Auto;
+  /// When set (with PatchMethod::Fitted): the surface of the grid points whose value rounds to this label,
+  /// as a label map's; `isovalue` and `reconstruction` are ignored and the reference is the label's field
+  /// against the other labels (smoothClass, mask_reference.h), so that touching labels' surfaces meet.
+  std::optional<std::int64_t> label;
   /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took,
   /// and the reconstruction used.
   FittingStats* fittingStats = nullptr;

@@ -34,7 +34,8 @@ std::uint8_t readModelHeader(ModelFileReader& r, Model& m) {
     r.fail("unknown patch method " + std::to_string(method));
   m.method = static_cast<PatchMethod>(method);
   const auto reconstruction = r.get<std::uint8_t>("reconstruction");
-  if (reconstruction > 1 + static_cast<int>(Reconstruction::Central8))
+  if (reconstruction > 1 + static_cast<int>(Reconstruction::Mask) ||
+      reconstruction == 1 + static_cast<int>(Reconstruction::Auto))
     r.fail("unknown reconstruction " + std::to_string(reconstruction));
   if (reconstruction > 0) m.reconstruction = static_cast<Reconstruction>(reconstruction - 1);
   const auto versionByte = r.get<std::uint8_t>("flags");

@@ -164,7 +164,7 @@ void hermiteInBox(const DenseGrid& grid, Reconstruction kind, const std::array<s
   } else if (kind == Reconstruction::Monotone) {
     boxPasses<MonotoneStencil>(grid, lo, size, at, count, out);
   } else {
-    throw Error("the reference needs a resolved reconstruction, not auto");
+    throw Error("the reference needs a resolved reconstruction (monotone or central8), not auto or mask");
   }
 }
 

@@ -10,6 +10,8 @@ const char* toString(Reconstruction kind) {
       return "central8";
     case Reconstruction::Auto:
       return "auto";
+    case Reconstruction::Mask:
+      return "mask";
     case Reconstruction::Monotone:
       break;
   }
@@ -20,7 +22,8 @@ Reconstruction parseReconstruction(const std::string& text) {
   if (text == "monotone") return Reconstruction::Monotone;
   if (text == "central8") return Reconstruction::Central8;
   if (text == "auto") return Reconstruction::Auto;
-  throw Error("unknown reconstruction '" + text + "' (expected auto, monotone or central8)");
+  if (text == "mask") return Reconstruction::Mask;
+  throw Error("unknown reconstruction '" + text + "' (expected auto, monotone, central8 or mask)");
 }
 
 }  // namespace cip

@@ -19,12 +19,16 @@ enum class Reconstruction : std::uint8_t {
   /// it adds crossings the cell configurations cannot follow.
   Central8 = 1,
   /// Chosen per volume by buildModel from the samples near the isosurface (reconstruction_choice.h): Central8
-  /// where they are smooth at the grid's scale, Monotone otherwise. The default. Only buildModel takes it;
-  /// the functions below need one of the two above.
+  /// where they are smooth at the grid's scale, Monotone otherwise (Mask for two-valued data). The default.
+  /// Only buildModel takes it; the functions below need Monotone or Central8.
   Auto = 2,
+  /// Two-valued data (segmentation masks, one label of a label map): the reference is the smoothed indicator
+  /// of the voxels inside (mask_reference.h), whose sign at every grid point is the sample's, interpolated
+  /// with Central8 derivatives. Auto takes it when the samples next to the surface take only two values.
+  Mask = 3,
 };
 const char* toString(Reconstruction kind);
-/// "monotone", "central8" or "auto"; throws Error otherwise.
+/// "monotone", "central8", "auto" or "mask"; throws Error otherwise.
 Reconstruction parseReconstruction(const std::string& text);
 
 }  // namespace cip
