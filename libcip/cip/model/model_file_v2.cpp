@@ -404,6 +404,9 @@ void gridPointVertexFlags(ChunkTopology& ch, int positionBits) {
 
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
 
+/// Per model cell, the model-wide index of the face of each of its cell faces (kNone: not crossed).
+using CellFaces = std::vector<std::array<std::uint32_t, 6>>;
+
 struct Chunks {
   Layout L;
   std::vector<ChunkTopology> list;  ///< in increasing brick key order
@@ -598,39 +601,49 @@ constexpr int aroundSlot(int e) {
 
 // ---- decoding a model from its chunks (shared: the writer decodes what it writes) ----------------------
 
+/// The vertices' positions (index coordinates) from their crossing parameters, or kept in full precision.
+void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
+  const double scale = 1.0 / maxTCode(positionBits);
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    const ChunkTopology& ch = chunks.list[i];
+    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+      const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
+      IsoVertex& vx = m.vertices[ch.vertexBase + v];
+      vx.position = Vec3(static_cast<double>(p[0]), static_cast<double>(p[1]), static_cast<double>(p[2]));
+      vx.position[axis] += ch.tCode[v] * scale;
+      vx.weight = 1.0;
+    }
+    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
+      const std::uint32_t v = ch.exact[k];
+      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+      const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
+      m.vertices[ch.vertexBase + v].position[axis] = static_cast<double>(p[axis]) + ch.exactT[k];
+    }
+  });
+}
+
 /// Fills the model's cells (index, configuration, pairings, loops, corners, and the coefficients the chunks
-/// carry), the vertices' positions and every vertex's loop neighbours, one pass per chunk; records each
-/// cell's faces (model-wide face index per cell face, kNone) when asked. The model's tables are sized here.
-void fillModel(Chunks& chunks, int positionBits, Model& m, std::vector<LoopNeighbours>& around,
-               std::vector<std::array<std::uint32_t, 6>>* cellFaces, const std::string& name) {
+/// carry) and every vertex's loop neighbours, one pass per chunk; records each cell's faces (model-wide face
+/// index per cell face, kNone) when asked. The model's tables are sized here. The pairings are the chunks'
+/// (reader), or those of `source`'s cells (writer), whose cells must then be the ones the signs give.
+void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, CellFaces* cellFaces,
+               const Model* source, const std::string& name) {
   const Layout& L = chunks.L;
   std::uint64_t corners = 0, vertices = 0;
   const std::uint64_t cells = placeCellRows(chunks, corners);
   if (corners > std::numeric_limits<std::uint32_t>::max()) throw Error(name + ": too many corners");
+  if (source && source->cells.size() != cells)
+    throw Error(name + ": the model cannot be written in format 2: its cells do not follow from its signs");
   for (const ChunkTopology& ch : chunks.list) vertices += ch.vertexKey.size();
   resizeHuge(m.cells, cells);
   resizeHuge(m.corners, corners);
   resizeHuge(m.vertices, vertices);
   around.resize(vertices);
   if (cellFaces) cellFaces->resize(cells);
-  const double scale = 1.0 / maxTCode(positionBits);
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-      const I3 p = keyPoint(ch, L.B, ch.vertexKey[v] / 3);
-      IsoVertex& vx = m.vertices[ch.vertexBase + v];
-      vx.position = Vec3(static_cast<double>(p[0]), static_cast<double>(p[1]), static_cast<double>(p[2]));
-      vx.position[axis] += ch.tCode[v] * scale;
-      vx.weight = 1.0;
-      around[ch.vertexBase + v].v.fill(kNone);
-    }
-    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
-      const std::uint32_t v = ch.exact[k];
-      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-      const I3 p = keyPoint(ch, L.B, ch.vertexKey[v] / 3);
-      m.vertices[ch.vertexBase + v].position[axis] = static_cast<double>(p[axis]) + ch.exactT[k];
-    }
+    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) around[ch.vertexBase + v].v.fill(kNone);
   });
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
@@ -651,6 +664,9 @@ void fillModel(Chunks& chunks, int positionBits, Model& m, std::vector<LoopNeigh
         cell.index[static_cast<std::size_t>(a)] = static_cast<std::uint32_t>(idx[a]);
       cell.config = ch.config[j];
       cell.pairing03 = 0;
+      if (source && (source->cells[c].index != cell.index || source->cells[c].config != cell.config))
+        throw Error(name +
+                    ": the model cannot be written in format 2: its cells do not follow from its signs");
       const std::uint8_t faces = cube::crossedFaces(cell.config);
       for (int f = 0; f < 6; ++f) {
         double w = 0;
@@ -659,7 +675,8 @@ void fillModel(Chunks& chunks, int positionBits, Model& m, std::vector<LoopNeigh
           if (fl == kNone)
             throw Error(name + ": damaged model file: a crossed face of cell " + std::to_string(c) +
                         " is missing");
-          if (owner->facePairing[fl] && cube::isAmbiguousFace(cell.config, f))
+          const bool paired = source ? (source->cells[c].pairing03 >> f) & 1 : owner->facePairing[fl];
+          if (paired && cube::isAmbiguousFace(cell.config, f))
             cell.pairing03 = static_cast<std::uint8_t>(cell.pairing03 | (1u << f));
           if (!owner->side.empty()) w = owner->side[fl];
           if (cellFaces)
@@ -791,8 +808,6 @@ void applyExactPositions(Model& m, const Chunks& chunks) {
     }
 }
 
-using CellFaces = std::vector<std::array<std::uint32_t, 6>>;
-
 /// The paper's side coefficient of every face (global face order) from the model's corners as stored: what
 /// the file codes the paper method's side coefficients against (a well-conditioned face then costs a zero).
 /// Each face is computed once, by the cell it bounds from below if that cell is in the model, else by the
@@ -827,25 +842,13 @@ std::vector<double> paperSidePrediction(const Model& m, const CellFaces& cellFac
 
 namespace {
 
-/// The model's cells around one chunk (indices from the region's first point - 1 to its last), by grid index:
-/// the writer's lookups, filled while the chunk's signs are.
-struct CellFinder {
-  I3 lo{}, n{};
-  std::vector<std::int64_t> cell;  ///< model cell, or -1
-  void reset(const Region& r) {
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = r.lo[a] - 1;
-      n[a] = r.n[a] + 1;
-    }
-    cell.assign(static_cast<std::size_t>(n[0] * n[1] * n[2]), -1);
-  }
-  std::int64_t& at(const I3& c) {
-    return cell[static_cast<std::size_t>((c[0] - lo[0]) + n[0] * ((c[1] - lo[1]) + n[1] * (c[2] - lo[2])))];
-  }
-  std::int64_t find(const I3& c) const {
-    for (int a = 0; a < 3; ++a)
-      if (c[a] < lo[a] || c[a] >= lo[a] + n[a]) return -1;
-    return cell[static_cast<std::size_t>((c[0] - lo[0]) + n[0] * ((c[1] - lo[1]) + n[1] * (c[2] - lo[2])))];
+/// The model's cells in the rows of cells around one chunk's region (y and z from the region's first point -
+/// 1 to its last, x likewise): each row's range of Model::cells, found while the chunk's signs are.
+struct ModelRows {
+  std::int64_t y0 = 0, z0 = 0, ny = 0;
+  std::vector<std::pair<std::size_t, std::size_t>> range;
+  std::pair<std::size_t, std::size_t>& at(std::int64_t y, std::int64_t z) {
+    return range[static_cast<std::size_t>((y - y0) + ny * (z - z0))];
   }
 };
 
@@ -872,9 +875,12 @@ void encodeRows(const ChunkTopology& ch, std::vector<std::uint8_t>& out) {
 /// Signs of the region's points from the model's cells; points no cell decides take the sign of their row's
 /// decided neighbour, and rows with none that of an adjacent row (exactly the volume's own signs when every
 /// crossed cell is in the model).
-void signsFromModel(const Model& m, ChunkTopology& ch, CellFinder& finder, const std::string& name) {
+void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, const std::string& name) {
   const Region& r = ch.region;
-  finder.reset(r);
+  cellRows.y0 = r.lo[1] - 1;
+  cellRows.z0 = r.lo[2] - 1;
+  cellRows.ny = r.n[1] + 1;
+  cellRows.range.assign(static_cast<std::size_t>(cellRows.ny * (r.n[2] + 1)), {0, 0});
   const std::size_t n = static_cast<std::size_t>(r.n[0] * r.n[1] * r.n[2]);
   std::vector<std::int8_t> s(n, -1);
   auto rowKey = [](std::uint32_t i, std::uint32_t j, std::uint32_t k) {
@@ -888,10 +894,12 @@ void signsFromModel(const Model& m, ChunkTopology& ch, CellFinder& finder, const
       auto it = std::lower_bound(
           m.cells.begin(), m.cells.end(), target,
           [&](const ModelCell& a, const auto& t) { return rowKey(a.index[0], a.index[1], a.index[2]) < t; });
+      auto& range = cellRows.at(j, k);
+      range.first = static_cast<std::size_t>(it - m.cells.begin());
       for (; it != m.cells.end() && it->index[1] == j && it->index[2] == k && it->index[0] < iEnd; ++it) {
         const ModelCell& cell = *it;
         const std::int64_t i = cell.index[0];
-        finder.at({i, j, k}) = it - m.cells.begin();
+        range.second = static_cast<std::size_t>(it - m.cells.begin()) + 1;
         for (int v = 0; v < 8; ++v) {
           const auto o = cube::vertexCoords(v);
           const I3 p{i + o[0], j + o[1], k + o[2]};
@@ -947,45 +955,17 @@ void signsFromModel(const Model& m, ChunkTopology& ch, CellFinder& finder, const
                                                                                                 << (i & 63);
 }
 
-/// The model vertex on the edge from grid point p along `axis`, from any present cell that has it, or -1
-/// (a crossing no present cell uses); all present cells must agree.
-std::int64_t modelVertexOn(const Model& m, const CellFinder& finder, const I3& p, int axis,
-                           const std::string& name) {
-  const auto o = cube::otherAxes(axis);
-  std::int64_t found = -1;
-  for (int db = 0; db < 2; ++db)
-    for (int dc = 0; dc < 2; ++dc) {
-      I3 c = p;
-      c[o[0]] -= db;
-      c[o[1]] -= dc;
-      const std::int64_t ci = finder.find(c);
-      if (ci < 0) continue;
-      const int e = cube::edgeIndex(axis, db, dc);
-      const ModelCell& cell = m.cells[static_cast<std::size_t>(ci)];
-      const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
-      for (int k = 0; k < loops.numCorners(); ++k)
-        if (loops.edges[static_cast<std::size_t>(k)] == e) {
-          const std::int64_t v = m.corners[cell.firstCorner + static_cast<std::uint32_t>(k)];
-          if (found >= 0 && found != v)
-            throw Error(
-                name +
-                ": the model cannot be written in format 2: cells around a grid edge use different vertices");
-          found = v;
-        }
-    }
-  return found;
-}
-
 struct ChunkSource {
   std::vector<std::int64_t> vertex;  ///< model vertex per owned vertex, or -1
   std::vector<double> side;          ///< model side coefficient per owned face
   std::vector<std::int64_t> cell;    ///< model cell per present cell
 };
 
-void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Options& q, ChunkTopology& ch,
-                         ChunkSource& src, const std::string& name) {
-  CellFinder finder;
-  signsFromModel(m, ch, finder, name);
+/// The chunk's signs (from the model's cells), sign rows, cells and exceptions, and owned crossed items.
+void buildChunkFromModel(const Model& m, const Layout& L, ChunkTopology& ch, ChunkSource& src,
+                         const std::string& name) {
+  ModelRows rows;
+  signsFromModel(m, ch, rows, name);
   ch.streams.assign(kNumStreams, {});
   encodeRows(ch, ch.streams[kRows]);
   // Present cells and the crossed ones the model leaves out.
@@ -993,17 +973,23 @@ void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Optio
   std::vector<std::uint8_t> configs;
   cellsFromSigns(L, ch, nontrivial, configs);
   std::vector<std::uint32_t> exceptions;
+  std::uint32_t row = kNone;
+  std::size_t at = 0, end = 0;
   for (std::uint32_t local : nontrivial) {
     const I3 c{ch.origin[0] + local % L.B, ch.origin[1] + (local / L.B) % L.B,
                ch.origin[2] + local / (L.B * L.B)};
-    const std::int64_t ci = finder.find(c);
-    if (ci < 0) {
+    if (local / L.B != row) {
+      row = static_cast<std::uint32_t>(local / L.B);
+      std::tie(at, end) = rows.at(c[1], c[2]);
+    }
+    while (at < end && m.cells[at].index[0] < c[0]) ++at;
+    if (at == end || m.cells[at].index[0] != c[0]) {
       exceptions.push_back(local);
       continue;
     }
     ch.cells.push_back(local);
-    ch.config.push_back(m.cells[static_cast<std::size_t>(ci)].config);
-    src.cell.push_back(ci);
+    ch.config.push_back(m.cells[at].config);
+    src.cell.push_back(static_cast<std::int64_t>(at));
   }
   putVarint(ch.streams[kExceptions], exceptions.size());
   std::uint32_t prev = 0;
@@ -1012,17 +998,58 @@ void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Optio
     prev = e + 1;
   }
   ownedItems(L, ch);
-  // Vertices: crossing parameters.
+}
+
+/// Which model vertex each vertex of the file is, and which model cells each face of the file bounds: per
+/// vertex the model vertex of each cell around its edge (in grid order), per face the cell on each side.
+struct ModelUse {
+  std::vector<std::array<std::uint32_t, 4>> vertex;
+  std::vector<std::array<std::uint32_t, 2>> face;
+};
+
+ModelUse modelUse(const Model& m, const Model& sk, const CellFaces& cellFaces, std::size_t faces) {
+  ModelUse use;
+  use.vertex.assign(sk.vertices.size(), {kNone, kNone, kNone, kNone});
+  use.face.assign(faces, {kNone, kNone});
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, sk.cells.size()), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t c = r.begin(); c < r.end(); ++c) {
+          const ModelCell& cell = sk.cells[c];
+          const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
+          for (int k = 0; k < loops.numCorners(); ++k)
+            use.vertex[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]]
+                      [static_cast<std::size_t>(aroundSlot(loops.edges[static_cast<std::size_t>(k)]))] =
+                m.corners[m.cells[c].firstCorner + static_cast<std::uint32_t>(k)];
+          for (int f = 0; f < 6; ++f)
+            if (cellFaces[c][static_cast<std::size_t>(f)] != kNone)
+              use.face[cellFaces[c][static_cast<std::size_t>(f)]][static_cast<std::size_t>(f & 1)] =
+                  static_cast<std::uint32_t>(c);
+        }
+      });
+  return use;
+}
+
+/// The chunk's crossing parameters, zero normal components, pairings and side coefficients from the model.
+void codeChunkItems(const Model& m, const Layout& L, const ModelFileV2Options& q, const ModelUse& use,
+                    ChunkTopology& ch, ChunkSource& src, const std::string& name) {
   const std::uint16_t tMax = maxTCode(q.positionBits);
   ch.tCode.resize(ch.vertexKey.size());
   src.vertex.resize(ch.vertexKey.size());
   for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
     const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-    const I3 p = keyPoint(ch, L.B, ch.vertexKey[v] / 3);
-    const std::int64_t mv = modelVertexOn(m, finder, p, axis, name);
+    std::int64_t mv = -1;
+    for (std::uint32_t u : use.vertex[ch.vertexBase + v]) {
+      if (u == kNone) continue;
+      if (mv >= 0 && mv != static_cast<std::int64_t>(u))
+        throw Error(
+            name +
+            ": the model cannot be written in format 2: cells around a grid edge use different vertices");
+      mv = u;
+    }
     src.vertex[v] = mv;
     double t = 0.5;
     if (mv >= 0) {
+      const I3 p = keyPoint(ch, L.B, ch.vertexKey[v] / 3);
       const Vec3& pos = m.vertices[static_cast<std::size_t>(mv)].position;
       t = pos[axis] - static_cast<double>(p[axis]);
       if (!(t >= 0 && t <= 1))
@@ -1049,17 +1076,14 @@ void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Optio
   src.side.resize(ch.faceKey.size());
   for (std::size_t f = 0; f < ch.faceKey.size(); ++f) {
     const int axis = static_cast<int>(ch.faceKey[f] % 3);
-    const I3 p = keyPoint(ch, L.B, ch.faceKey[f] / 3);
     bool seen = false;
     const bool ambiguous = ch.faceAmbiguous[f];
     std::uint8_t pairing = 0;
     double side = 0;
     for (int s = 0; s < 2; ++s) {
-      I3 c = p;
-      c[axis] -= s;
-      const std::int64_t ci = finder.find(c);
-      if (ci < 0) continue;
-      const ModelCell& cell = m.cells[static_cast<std::size_t>(ci)];
+      const std::uint32_t ci = use.face[ch.faceBase + f][static_cast<std::size_t>(s)];
+      if (ci == kNone) continue;
+      const ModelCell& cell = m.cells[ci];
       const int face = 2 * axis + s;
       const std::uint8_t pr = (cell.pairing03 >> face) & 1;
       if (seen &&
@@ -1191,7 +1215,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   }
   std::vector<ChunkSource> sources(chunks.list.size());
   tbb::parallel_for(std::size_t(0), chunks.list.size(),
-                    [&](std::size_t i) { buildChunkFromModel(m, L, q, chunks.list[i], sources[i], name); });
+                    [&](std::size_t i) { buildChunkFromModel(m, L, chunks.list[i], sources[i], name); });
   std::uint64_t vb = 0, fb = 0;
   for (ChunkTopology& ch : chunks.list) {
     ch.vertexBase = vb;
@@ -1206,9 +1230,13 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   for (ChunkTopology& ch : chunks.list) indexCellRows(L, ch);
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
-  fillModel(chunks, q.positionBits, sk, around, m.method == PatchMethod::Paper ? &cellFaces : nullptr, name);
-  if (sk.cells.size() != m.cells.size())
-    throw Error(name + ": the model cannot be written in format 2: its cells do not follow from its signs");
+  fillCells(chunks, sk, around, &cellFaces, &m, name);
+  {
+    const ModelUse use = modelUse(m, sk, cellFaces, fb);
+    tbb::parallel_for(std::size_t(0), chunks.list.size(),
+                      [&](std::size_t i) { codeChunkItems(m, L, q, use, chunks.list[i], sources[i], name); });
+  }
+  placeVertices(chunks, q.positionBits, sk);
   const double nStep = std::ldexp(1.0, -q.normalBits);
   std::uint8_t flags = kSidesStored;
   for (const ModelCell& c : m.cells)
@@ -1693,7 +1721,8 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   const bool paper = m.method == PatchMethod::Paper;
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
-  fillModel(chunks, h.q.positionBits, m, around, paper ? &cellFaces : nullptr, name);
+  fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, name);
+  placeVertices(chunks, h.q.positionBits, m);
   decodeNormals(m, chunks, around, std::ldexp(1.0, -h.q.normalBits), [&](std::size_t i) {
     return NormalCodeReader(chunks.list[i], h, m, chunkName(name, i, h.dir[i], chunks.L.B));
   });
