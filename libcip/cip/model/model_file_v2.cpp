@@ -881,19 +881,22 @@ void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, cons
   cellRows.z0 = r.lo[2] - 1;
   cellRows.ny = r.n[1] + 1;
   cellRows.range.assign(static_cast<std::size_t>(cellRows.ny * (r.n[2] + 1)), {0, 0});
-  const std::size_t n = static_cast<std::size_t>(r.n[0] * r.n[1] * r.n[2]);
-  std::vector<std::int8_t> s(n, -1);
-  auto rowKey = [](std::uint32_t i, std::uint32_t j, std::uint32_t k) {
-    return std::array<std::uint32_t, 3>{k, j, i};
+  const std::int64_t rows = r.n[1] * r.n[2];
+  const std::size_t W = ch.words;
+  // Per row: which points some cell decides, and their signs (ch.sign).
+  std::vector<Word> known(static_cast<std::size_t>(rows) * W, 0);
+  ch.sign.assign(static_cast<std::size_t>(rows) * W, 0);
+  auto before = [](const ModelCell& a, std::int64_t i, std::int64_t j, std::int64_t k) {
+    if (a.index[2] != k) return a.index[2] < k;
+    if (a.index[1] != j) return a.index[1] < j;
+    return a.index[0] < i;
   };
   const std::int64_t iFirst = std::max<std::int64_t>(0, r.lo[0] - 1), iEnd = r.lo[0] + r.n[0];
+  auto it = m.cells.begin();
   for (std::int64_t k = std::max<std::int64_t>(0, r.lo[2] - 1); k < r.lo[2] + r.n[2]; ++k)
     for (std::int64_t j = std::max<std::int64_t>(0, r.lo[1] - 1); j < r.lo[1] + r.n[1]; ++j) {
-      const auto target = rowKey(static_cast<std::uint32_t>(iFirst), static_cast<std::uint32_t>(j),
-                                 static_cast<std::uint32_t>(k));
-      auto it = std::lower_bound(
-          m.cells.begin(), m.cells.end(), target,
-          [&](const ModelCell& a, const auto& t) { return rowKey(a.index[0], a.index[1], a.index[2]) < t; });
+      it = std::lower_bound(it, m.cells.end(), 0,
+                            [&](const ModelCell& a, int) { return before(a, iFirst, j, k); });
       auto& range = cellRows.at(j, k);
       range.first = static_cast<std::size_t>(it - m.cells.begin());
       for (; it != m.cells.end() && it->index[1] == j && it->index[2] == k && it->index[0] < iEnd; ++it) {
@@ -904,35 +907,45 @@ void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, cons
           const auto o = cube::vertexCoords(v);
           const I3 p{i + o[0], j + o[1], k + o[2]};
           if (!r.contains(p)) continue;
-          std::int8_t& t = s[static_cast<std::size_t>(r.index(p))];
-          const std::int8_t sv = static_cast<std::int8_t>((cell.config >> v) & 1);
-          if (t >= 0 && t != sv)
+          const std::size_t x = static_cast<std::size_t>(p[0] - r.lo[0]);
+          const std::size_t w = static_cast<std::size_t>(r.rowIndex(p[1], p[2])) * W + x / 64;
+          const Word bit = Word(1) << (x % 64), sv = ((cell.config >> v) & 1) ? bit : 0;
+          if ((known[w] & bit) && (ch.sign[w] & bit) != sv)
             throw Error(
                 name +
                 ": the model cannot be written in format 2: cells disagree on the sign of grid point (" +
                 std::to_string(p[0]) + "," + std::to_string(p[1]) + "," + std::to_string(p[2]) + ")");
-          t = sv;
+          known[w] |= bit;
+          ch.sign[w] |= sv;
         }
       }
     }
-  // Fill rows from their decided points; rows without any from adjacent rows (breadth first).
-  const std::int64_t rows = r.n[1] * r.n[2];
+  // Fill rows from their decided points (a point takes the sign of the decided one before it, leading ones
+  // that of the first); rows without any from adjacent rows (breadth first).
+  const std::size_t used = static_cast<std::size_t>((r.n[0] + 63) / 64);
   std::vector<std::int8_t> rowSign(static_cast<std::size_t>(rows), -1);
   std::vector<std::int64_t> queue;
   for (std::int64_t row = 0; row < rows; ++row) {
-    std::int8_t* x = &s[static_cast<std::size_t>(row * r.n[0])];
-    std::int8_t last = -1;
-    for (std::int64_t i = 0; i < r.n[0]; ++i)
-      if (x[i] >= 0) {
-        last = x[i];
-        break;
+    const Word* kn = &known[static_cast<std::size_t>(row) * W];
+    Word* sg = &ch.sign[static_cast<std::size_t>(row) * W];
+    std::int64_t from = 0;  // first point of the undecided run before the next decided point
+    int last = -1;
+    for (std::size_t w = 0; w < used; ++w)
+      for (Word bits = kn[w]; bits; bits &= bits - 1) {
+        const std::int64_t i = 64 * static_cast<std::int64_t>(w) + __builtin_ctzll(bits);
+        const int value = bitAt(sg, i);
+        if ((last < 0 ? value : last) == 1)
+          for (std::size_t u = static_cast<std::size_t>(from >> 6);
+               from < i && u <= static_cast<std::size_t>((i - 1) >> 6); ++u)
+            sg[u] |= bitRange(u, from, i);
+        last = value;
+        from = i + 1;
       }
     if (last < 0) continue;
-    for (std::int64_t i = 0; i < r.n[0]; ++i) {
-      if (x[i] < 0) x[i] = last;
-      last = x[i];
-    }
-    rowSign[static_cast<std::size_t>(row)] = x[0];
+    if (last == 1)
+      for (std::size_t u = static_cast<std::size_t>(from >> 6); from < r.n[0] && u < used; ++u)
+        sg[u] |= bitRange(u, from, r.n[0]);
+    rowSign[static_cast<std::size_t>(row)] = static_cast<std::int8_t>(sg[0] & 1);
     queue.push_back(row);
   }
   for (std::size_t head = 0; head < queue.size(); ++head) {
@@ -943,16 +956,12 @@ void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, cons
       const std::int64_t qr = q[0] + r.n[1] * q[1];
       if (rowSign[static_cast<std::size_t>(qr)] >= 0) continue;
       rowSign[static_cast<std::size_t>(qr)] = rowSign[static_cast<std::size_t>(row)];
-      std::fill_n(&s[static_cast<std::size_t>(qr * r.n[0])], r.n[0], rowSign[static_cast<std::size_t>(row)]);
+      if (rowSign[static_cast<std::size_t>(row)])
+        for (std::size_t u = 0; u < used; ++u)
+          ch.sign[static_cast<std::size_t>(qr) * W + u] = bitRange(u, 0, r.n[0]);
       queue.push_back(qr);
     }
   }
-  ch.sign.assign(static_cast<std::size_t>(rows) * ch.words, 0);
-  for (std::int64_t row = 0; row < rows; ++row)
-    for (std::int64_t i = 0; i < r.n[0]; ++i)
-      if (s[static_cast<std::size_t>(row * r.n[0] + i)] > 0)
-        ch.sign[static_cast<std::size_t>(row) * ch.words + static_cast<std::size_t>(i >> 6)] |= Word(1)
-                                                                                                << (i & 63);
 }
 
 struct ChunkSource {
