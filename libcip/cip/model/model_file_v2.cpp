@@ -573,14 +573,15 @@ void linkCells(const Chunks& chunks, std::size_t index, Visit&& visit) {
     items.vertex.fill(kNone);
     items.face.fill(kNone);
     const bool xNext = lx + 1 >= ch.ownedCount[0];  // the cell's upper x points belong to the next brick
+    // A cell's edges start at all its points but (1, 1, 1) (point row 3 only at x), its faces at (0, 0, 0)
+    // and one step up each axis: only those entries are looked up.
     for (int d = 0; d < 4; ++d) {
       const auto t = static_cast<std::size_t>(6 * d);
-      vMain[d].gather(lx, xNext ? 3 : 6, &items.vertex[t]);
-      fMain[d].gather(lx, xNext ? 3 : 6, &items.face[t]);
-      if (xNext) {
-        vNext[d].gather(0, 3, &items.vertex[t + 3]);
-        fNext[d].gather(0, 3, &items.face[t + 3]);
-      }
+      const bool upperX = d < 3;  // the row has edges (and row 0 faces) at the cell's upper x point
+      vMain[d].gather(lx, upperX && !xNext ? 6 : 3, &items.vertex[t]);
+      if (upperX && xNext) vNext[d].gather(0, 3, &items.vertex[t + 3]);
+      if (d < 3) fMain[d].gather(lx, d == 0 && !xNext ? 6 : 3, &items.face[t]);
+      if (d == 0 && xNext) fNext[d].gather(0, 3, &items.face[t + 3]);
       items.owner[static_cast<std::size_t>(2 * d)] = rowOwner[d][0];
       items.owner[static_cast<std::size_t>(2 * d + 1)] = xNext ? rowOwner[d][1] : rowOwner[d][0];
     }
@@ -898,7 +899,7 @@ void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, cons
       it = std::lower_bound(it, m.cells.end(), 0,
                             [&](const ModelCell& a, int) { return before(a, iFirst, j, k); });
       auto& range = cellRows.at(j, k);
-      range.first = static_cast<std::size_t>(it - m.cells.begin());
+      range.first = range.second = static_cast<std::size_t>(it - m.cells.begin());
       for (; it != m.cells.end() && it->index[1] == j && it->index[2] == k && it->index[0] < iEnd; ++it) {
         const ModelCell& cell = *it;
         const std::int64_t i = cell.index[0];
