@@ -211,6 +211,21 @@ struct Region {
   }
 };
 
+/// A cell of a brick by its packed local coordinates x + 256 (y + 256 z) (a brick is at most 128 cells a
+/// side): in the order of the file's cell index x + B (y + B z), and taken apart with shifts.
+constexpr std::uint32_t packCell(std::int64_t x, std::int64_t y, std::int64_t z) {
+  return static_cast<std::uint32_t>(x | y << 8 | z << 16);
+}
+constexpr std::int64_t cellX(std::uint32_t c) {
+  return c & 255;
+}
+constexpr std::int64_t cellY(std::uint32_t c) {
+  return (c >> 8) & 255;
+}
+constexpr std::int64_t cellZ(std::uint32_t c) {
+  return c >> 16;
+}
+
 /// What a chunk holds, decoded: the topology every later step (and the writer's own prediction) needs.
 struct ChunkTopology {
   I3 brick{};
@@ -220,7 +235,7 @@ struct ChunkTopology {
   Region region;
   std::size_t words = 0;            ///< 64-bit words per sign row: one more than its points need
   std::vector<std::uint64_t> sign;  ///< per region row (y fastest, then z): bit i set = point lo[0] + i above
-  std::vector<std::uint32_t> cells;  ///< present cells: lx + B (ly + B lz), increasing
+  std::vector<std::uint32_t> cells;  ///< present cells, packed (packCell), increasing
   std::vector<std::uint8_t> config;
   std::vector<std::uint32_t> rowFirstCell;  ///< per cell row (ly + cellCount[1] lz): its first entry of cells
   std::vector<std::uint64_t>
@@ -288,7 +303,7 @@ Word notAllEqual(Word a, Word b, Word c, Word d) {
 
 /// Present cells from signs and exceptions (reader), or the check that they agree (writer): the cells of the
 /// brick whose eight points do not all share a sign, in increasing (z, y, x), with their configurations.
-void cellsFromSigns(const Layout& L, const ChunkTopology& ch, std::vector<std::uint32_t>& nontrivial,
+void cellsFromSigns(const ChunkTopology& ch, std::vector<std::uint32_t>& nontrivial,
                     std::vector<std::uint8_t>& configs) {
   nontrivial.clear();
   configs.clear();
@@ -310,7 +325,7 @@ void cellsFromSigns(const Layout& L, const ChunkTopology& ch, std::vector<std::u
           const std::int64_t i = 64 * static_cast<std::int64_t>(w) + __builtin_ctzll(bits);
           int config = 0;
           for (int d = 0; d < 4; ++d) config |= (bitAt(r[d], i) | bitAt(r[d], i + 1) << 1) << (2 * d);
-          nontrivial.push_back(static_cast<std::uint32_t>((i - i0) + L.B * (ly + L.B * lz)));
+          nontrivial.push_back(packCell(i - i0, ly, lz));
           configs.push_back(static_cast<std::uint8_t>(config));
         }
       }
@@ -422,13 +437,12 @@ struct Chunks {
 };
 
 /// Per cell row (ly + cellCount[1] lz) of a chunk: where its cells start, and how many corners they have.
-void indexCellRows(const Layout& L, ChunkTopology& ch) {
+void indexCellRows(ChunkTopology& ch) {
   const auto rows = static_cast<std::size_t>(ch.cellCount[1] * ch.cellCount[2]);
   ch.rowFirstCell.assign(rows + 1, 0);
   ch.rowCorners.assign(rows, 0);
   for (std::size_t j = 0; j < ch.cells.size(); ++j) {
-    const std::uint32_t rowInBrick = ch.cells[j] / static_cast<std::uint32_t>(L.B);
-    const std::size_t row = rowInBrick % L.B + static_cast<std::size_t>(ch.cellCount[1]) * (rowInBrick / L.B);
+    const auto row = static_cast<std::size_t>(cellY(ch.cells[j]) + ch.cellCount[1] * cellZ(ch.cells[j]));
     ++ch.rowFirstCell[row + 1];
     ch.rowCorners[row] += static_cast<std::uint64_t>(__builtin_popcount(cube::crossedEdges(ch.config[j])));
   }
@@ -521,14 +535,21 @@ struct CellItems {
   std::array<const ChunkTopology*, 8> owner;  ///< per table and dx
   /// Model-wide index of the vertex on cell edge e, or kNone.
   std::uint32_t vertexOn(int e) const {
-    const int s = edgeSlot(e);
+    static constexpr std::array<std::uint8_t, 12> kSlot = [] {
+      std::array<std::uint8_t, 12> t{};
+      for (int i = 0; i < 12; ++i) t[static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(edgeSlot(i));
+      return t;
+    }();
+    const int s = kSlot[static_cast<std::size_t>(e)];
     const std::uint32_t v = vertex[static_cast<std::size_t>(s)];
     return v == kNone ? kNone
                       : static_cast<std::uint32_t>(owner[static_cast<std::size_t>(s / 3)]->vertexBase + v);
   }
   /// The chunk that owns cell face f, and its index there (kNone: none).
   std::pair<const ChunkTopology*, std::uint32_t> faceOn(int f) const {
-    const int s = faceSlot(f);
+    static constexpr std::array<std::uint8_t, 6> kSlot = {faceSlot(0), faceSlot(1), faceSlot(2),
+                                                          faceSlot(3), faceSlot(4), faceSlot(5)};
+    const int s = kSlot[static_cast<std::size_t>(f)];
     return {owner[static_cast<std::size_t>(s / 3)], face[static_cast<std::size_t>(s)]};
   }
 };
@@ -550,10 +571,10 @@ void linkCells(const Chunks& chunks, std::size_t index, Visit&& visit) {
   CellItems items;
   for (std::size_t j = 0; j < ch.cells.size(); ++j) {
     const std::uint32_t local = ch.cells[j];
-    const auto lx = static_cast<std::uint32_t>(local % B);
-    const std::int64_t ly = (local / B) % B, lz = local / (B * B);
-    if (local / B != currentRow) {
-      currentRow = static_cast<std::uint32_t>(local / B);
+    const auto lx = static_cast<std::uint32_t>(cellX(local));
+    const std::int64_t ly = cellY(local), lz = cellZ(local);
+    if (local >> 8 != currentRow) {
+      currentRow = local >> 8;
       for (int d = 0; d < 4; ++d) {
         const int dy = d & 1, dz = d >> 1;
         const bool upY = dy && ly + 1 >= ch.ownedCount[1], upZ = dz && lz + 1 >= ch.ownedCount[2];
@@ -630,7 +651,6 @@ void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
 /// (reader), or those of `source`'s cells (writer), whose cells must then be the ones the signs give.
 void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, CellFaces* cellFaces,
                const Model* source, const std::string& name) {
-  const Layout& L = chunks.L;
   std::uint64_t corners = 0, vertices = 0;
   const std::uint64_t cells = placeCellRows(chunks, corners);
   if (corners > std::numeric_limits<std::uint32_t>::max()) throw Error(name + ": too many corners");
@@ -652,8 +672,7 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
     std::uint64_t cellAt = 0, cornerAt = 0;
     linkCells(chunks, i, [&](std::size_t j, const I3& idx, const CellItems& items) {
       const std::uint32_t local = ch.cells[j];
-      const std::size_t r =
-          (local / L.B) % L.B + static_cast<std::size_t>(ch.cellCount[1]) * (local / (L.B * L.B));
+      const auto r = static_cast<std::size_t>(cellY(local) + ch.cellCount[1] * cellZ(local));
       if (r != row) {
         row = r;
         cellAt = ch.rowModelCell[r];
@@ -981,20 +1000,20 @@ void buildChunkFromModel(const Model& m, const Layout& L, ChunkTopology& ch, Chu
   // Present cells and the crossed ones the model leaves out.
   std::vector<std::uint32_t> nontrivial;
   std::vector<std::uint8_t> configs;
-  cellsFromSigns(L, ch, nontrivial, configs);
+  cellsFromSigns(ch, nontrivial, configs);
   std::vector<std::uint32_t> exceptions;
   std::uint32_t row = kNone;
   std::size_t at = 0, end = 0;
   for (std::uint32_t local : nontrivial) {
-    const I3 c{ch.origin[0] + local % L.B, ch.origin[1] + (local / L.B) % L.B,
-               ch.origin[2] + local / (L.B * L.B)};
-    if (local / L.B != row) {
-      row = static_cast<std::uint32_t>(local / L.B);
+    const I3 c{ch.origin[0] + cellX(local), ch.origin[1] + cellY(local), ch.origin[2] + cellZ(local)};
+    if (local >> 8 != row) {
+      row = local >> 8;
       std::tie(at, end) = rows.at(c[1], c[2]);
     }
     while (at < end && m.cells[at].index[0] < c[0]) ++at;
     if (at == end || m.cells[at].index[0] != c[0]) {
-      exceptions.push_back(local);
+      exceptions.push_back(
+          static_cast<std::uint32_t>(cellX(local) + L.B * (cellY(local) + L.B * cellZ(local))));
       continue;
     }
     ch.cells.push_back(local);
@@ -1237,7 +1256,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   Model sk;
   sk.geometry = m.geometry;
   sk.method = m.method;
-  for (ChunkTopology& ch : chunks.list) indexCellRows(L, ch);
+  for (ChunkTopology& ch : chunks.list) indexCellRows(ch);
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
   fillCells(chunks, sk, around, &cellFaces, &m, name);
@@ -1541,7 +1560,7 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
   decodeRows(ch, rows);
   std::vector<std::uint32_t> nontrivial;
   std::vector<std::uint8_t> configs;
-  cellsFromSigns(L, ch, nontrivial, configs);
+  cellsFromSigns(ch, nontrivial, configs);
   StreamReader ex(&ch.streams[kExceptions], where + ": cell exceptions");
   const std::uint64_t nEx = ex.varint();
   if (nEx > nontrivial.size()) ex.fail("lists more cells than are crossed");
@@ -1550,7 +1569,9 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
   for (auto& x : skip) {
     next += ex.varint();
     if (next >= static_cast<std::uint64_t>(L.B * L.B * L.B)) ex.fail("lists a cell outside the brick");
-    x = static_cast<std::uint32_t>(next++);
+    x = packCell(static_cast<std::int64_t>(next) % L.B, static_cast<std::int64_t>(next) / L.B % L.B,
+                 static_cast<std::int64_t>(next) / (L.B * L.B));
+    ++next;
   }
   ex.expectEnd();
   if (skip.empty()) {
@@ -1572,7 +1593,7 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
   ch.sign = {};
   if (ch.vertexKey.size() != e.vertices || ch.faceKey.size() != e.faces)
     throw Error(where + ": its signs do not give the directory's vertex and face counts");
-  indexCellRows(L, ch);
+  indexCellRows(ch);
   StreamReader lo(&ch.streams[kPositionsLo], where + ": positions");
   StreamReader hi(&ch.streams[kPositionsHi], where + ": positions");
   const std::uint16_t tMax = maxTCode(h.q.positionBits);
