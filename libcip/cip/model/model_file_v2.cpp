@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <optional>
 
 #include "cip/core/checksum.h"
@@ -915,8 +916,15 @@ void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, cons
   auto it = m.cells.begin();
   for (std::int64_t k = std::max<std::int64_t>(0, r.lo[2] - 1); k < r.lo[2] + r.n[2]; ++k)
     for (std::int64_t j = std::max<std::int64_t>(0, r.lo[1] - 1); j < r.lo[1] + r.n[1]; ++j) {
-      it = std::lower_bound(it, m.cells.end(), 0,
-                            [&](const ModelCell& a, int) { return before(a, iFirst, j, k); });
+      // The row's first cell, searched forward from the last row's (galloping, then bisecting).
+      if (it != m.cells.end() && before(*it, iFirst, j, k)) {
+        auto lo = it, hi = it;
+        for (std::ptrdiff_t step = 1; hi != m.cells.end() && before(*hi, iFirst, j, k); step *= 2) {
+          lo = hi;
+          hi = m.cells.end() - lo > step ? lo + step : m.cells.end();
+        }
+        it = std::lower_bound(lo, hi, 0, [&](const ModelCell& a, int) { return before(a, iFirst, j, k); });
+      }
       auto& range = cellRows.at(j, k);
       range.first = range.second = static_cast<std::size_t>(it - m.cells.begin());
       for (; it != m.cells.end() && it->index[1] == j && it->index[2] == k && it->index[0] < iEnd; ++it) {
@@ -1170,6 +1178,10 @@ bool keepIllConditionedCells(const Model& m, const Model& sk, const CellFaces& c
 }
 
 void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& out) {
+  // One context for the chunk's streams (ZSTD_compressCCtx codes exactly as ZSTD_compress, without setting
+  // up a context per stream).
+  const std::unique_ptr<ZSTD_CCtx, std::size_t (*)(ZSTD_CCtx*)> context(ZSTD_createCCtx(), ZSTD_freeCCtx);
+  if (!context) throw Error("zstd: cannot create a compression context");
   for (auto& s : ch.streams) {
     putRaw<std::uint32_t>(out, static_cast<std::uint32_t>(s.size()));
     if (s.empty()) {
@@ -1177,7 +1189,7 @@ void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& ou
       continue;
     }
     std::vector<std::uint8_t> z(ZSTD_compressBound(s.size()));
-    const std::size_t n = ZSTD_compress(z.data(), z.size(), s.data(), s.size(), level);
+    const std::size_t n = ZSTD_compressCCtx(context.get(), z.data(), z.size(), s.data(), s.size(), level);
     if (ZSTD_isError(n)) throw Error(std::string("zstd: ") + ZSTD_getErrorName(n));
     if (n >= s.size()) {  // stored as is
       putRaw<std::uint32_t>(out, static_cast<std::uint32_t>(s.size()));
@@ -1402,8 +1414,8 @@ void decodeRows(ChunkTopology& ch, StreamReader& in) {
   in.expectEnd();
 }
 
-std::vector<std::uint8_t> decompress(const std::uint8_t*& at, const std::uint8_t* end, std::size_t cap,
-                                     const std::string& where) {
+std::vector<std::uint8_t> decompress(ZSTD_DCtx* context, const std::uint8_t*& at, const std::uint8_t* end,
+                                     std::size_t cap, const std::string& where) {
   if (end - at < 8) throw Error(where + " is truncated");
   std::uint32_t raw, stored;
   std::memcpy(&raw, at, 4);
@@ -1422,7 +1434,7 @@ std::vector<std::uint8_t> decompress(const std::uint8_t*& at, const std::uint8_t
     at += stored;
     return out;
   }
-  const std::size_t n = ZSTD_decompress(out.data(), raw, at, stored);
+  const std::size_t n = ZSTD_decompressDCtx(context, out.data(), raw, at, stored);
   if (ZSTD_isError(n) || n != raw) throw Error(where + " does not decompress to its declared size");
   at += stored;
   return out;
@@ -1553,8 +1565,10 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
                                         V,
                                         10 + 42 * V};
   ch.streams.resize(kNumStreams);
+  const std::unique_ptr<ZSTD_DCtx, std::size_t (*)(ZSTD_DCtx*)> context(ZSTD_createDCtx(), ZSTD_freeDCtx);
+  if (!context) throw Error(where + ": cannot create a zstd context");
   for (int s = 0; s < kNumStreams; ++s)
-    ch.streams[s] = decompress(at, end, cap[s], where + ", stream " + std::to_string(s) + ",");
+    ch.streams[s] = decompress(context.get(), at, end, cap[s], where + ", stream " + std::to_string(s) + ",");
   if (at != end) throw Error(where + ": bytes after its last stream");
   StreamReader rows(&ch.streams[kRows], where + ": sign rows");
   decodeRows(ch, rows);
