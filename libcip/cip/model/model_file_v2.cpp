@@ -818,17 +818,6 @@ void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbo
   });
 }
 
-/// Vertices kept in full precision: their crossing parameters (before normals are predicted again).
-void applyExactPositions(Model& m, const Chunks& chunks) {
-  for (const ChunkTopology& ch : chunks.list)
-    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
-      const std::uint32_t v = ch.exact[k];
-      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-      const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
-      m.vertices[ch.vertexBase + v].position[axis] = static_cast<double>(p[axis]) + ch.exactT[k];
-    }
-}
-
 /// The paper's side coefficient of every face (global face order) from the model's corners as stored: what
 /// the file codes the paper method's side coefficients against (a well-conditioned face then costs a zero).
 /// Each face is computed once, by the cell it bounds from below if that cell is in the model, else by the
@@ -1309,7 +1298,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
       m.method == PatchMethod::Paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
   if (m.method == PatchMethod::Paper &&
       keepIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction)) {
-    applyExactPositions(sk, chunks);
+    placeVertices(chunks, q.positionBits, sk);  // now with the full-precision ones
     codeNormals();
     sidePrediction = paperSidePrediction(sk, cellFaces, fb);
   }
