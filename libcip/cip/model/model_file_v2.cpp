@@ -71,6 +71,7 @@ class StreamReader {
   StreamReader(const std::vector<std::uint8_t>* bytes, std::string where)
       : b_(bytes), where_(std::move(where)) {}
   std::uint64_t varint() {
+    if (pos_ < b_->size() && !((*b_)[pos_] & 0x80)) return (*b_)[pos_++];  // most numbers take one byte
     std::uint64_t v = 0;
     for (int shift = 0; shift < 64; shift += 7) {
       if (pos_ >= b_->size()) fail("ends early");
@@ -420,6 +421,14 @@ void gridPointVertexFlags(ChunkTopology& ch, int positionBits) {
 
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
 
+/// cube::crossedFaces of every configuration (looked up for every cell).
+const std::array<std::uint8_t, 256> kCrossedFaces = [] {
+  std::array<std::uint8_t, 256> t{};
+  for (int c = 0; c < 256; ++c)
+    t[static_cast<std::size_t>(c)] = cube::crossedFaces(static_cast<std::uint8_t>(c));
+  return t;
+}();
+
 /// Per model cell, the model-wide index of the face of each of its cell faces (kNone: not crossed).
 using CellFaces = std::vector<std::array<std::uint32_t, 6>>;
 
@@ -688,7 +697,7 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
       if (source && (source->cells[c].index != cell.index || source->cells[c].config != cell.config))
         throw Error(name +
                     ": the model cannot be written in format 2: its cells do not follow from its signs");
-      const std::uint8_t faces = cube::crossedFaces(cell.config);
+      const std::uint8_t faces = kCrossedFaces[cell.config];
       for (int f = 0; f < 6; ++f) {
         double w = 0;
         if ((faces >> f) & 1) {
