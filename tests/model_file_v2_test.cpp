@@ -74,6 +74,24 @@ void expectSamePatches(const Model& a, const Model& b) {
   }
 }
 
+// Everything the file stores is the same, bit for bit.
+void expectSameModel(const Model& a, const Model& b) {
+  ASSERT_EQ(a.cells.size(), b.cells.size());
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  EXPECT_EQ(a.corners, b.corners);
+  for (std::size_t c = 0; c < a.cells.size(); ++c) {
+    EXPECT_EQ(a.cells[c].index, b.cells[c].index);
+    EXPECT_EQ(a.cells[c].pairing03, b.cells[c].pairing03);
+    EXPECT_EQ(a.cells[c].firstCorner, b.cells[c].firstCorner);
+    EXPECT_EQ(a.cells[c].faceCoefficient, b.cells[c].faceCoefficient);
+    EXPECT_EQ(a.cells[c].central, b.cells[c].central);
+  }
+  for (std::size_t v = 0; v < a.vertices.size(); ++v) {
+    EXPECT_EQ(a.vertices[v].position, b.vertices[v].position);
+    EXPECT_EQ(a.vertices[v].normal, b.vertices[v].normal);
+  }
+}
+
 }  // namespace
 
 // The cells, their configurations, loops and corners are kept exactly; each vertex stays on its edge within
@@ -129,6 +147,8 @@ TEST(ModelFileV2, StoredModelIsIndependentOfChunkingAndThreadsAndRewritesIdentic
     {
       tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
       EXPECT_EQ(withBrick(m, 8), small);
+      // Chunks are decoded in parallel; one thread decodes the same model, bit for bit.
+      expectSameModel(parseModel(small.data(), small.size()), b);
     }
     if (method == PatchMethod::Fitted) {
       EXPECT_EQ(withBrick(a, 64), big);
@@ -211,6 +231,41 @@ TEST(ModelFileV2, DamageIsReportedWithItsChunk) {
     resealHeader(b, m);
     const std::string e = parseError(b);
     EXPECT_NE(e.find("more than its counts can need"), std::string::npos) << e;
+  }
+  // A chunk left out (directory, cell count and checksums made consistent again): the cells of the bricks
+  // below it lack the vertices and faces it owns, and the file is refused.
+  {
+    const std::size_t drop = chunks / 2, entries = dir, chunkStart = firstChunk;
+    std::vector<std::uint8_t> b(good.begin(), good.begin() + static_cast<std::ptrdiff_t>(entries));
+    std::uint64_t offset = chunkStart, dropOffset = 0, dropBytes = 0;
+    std::uint32_t dropCells = 0;
+    for (std::uint32_t i = 0; i < chunks; ++i) {
+      const std::uint8_t* e = good.data() + dir + i * kEntryBytes;
+      std::uint64_t bytes;
+      std::memcpy(&bytes, e + 24, 8);
+      if (i == drop) {
+        std::memcpy(&dropCells, e + 12, 4);
+        dropOffset = offset;
+        dropBytes = bytes;
+      } else {
+        b.insert(b.end(), e, e + kEntryBytes);
+      }
+      offset += bytes;
+    }
+    ASSERT_GT(dropCells, 0u);
+    std::uint64_t cells, count = chunks - 1;
+    std::memcpy(&cells, b.data() + dir - 16, 8);
+    cells -= dropCells;
+    std::memcpy(b.data() + dir - 16, &cells, 8);
+    std::memcpy(b.data() + dir - 8, &count, 8);
+    const auto c = static_cast<std::uint32_t>(crc32(0L, b.data(), static_cast<uInt>(b.size())));
+    b.insert(b.end(), reinterpret_cast<const std::uint8_t*>(&c),
+             reinterpret_cast<const std::uint8_t*>(&c) + 4);
+    b.insert(b.end(), good.begin() + static_cast<std::ptrdiff_t>(chunkStart),
+             good.begin() + static_cast<std::ptrdiff_t>(dropOffset));
+    b.insert(b.end(), good.begin() + static_cast<std::ptrdiff_t>(dropOffset + dropBytes), good.end());
+    const std::string e = parseError(b);
+    EXPECT_NE(e.find("damaged model file: a crossed"), std::string::npos) << e;
   }
   // Truncated anywhere: an error, never a crash.
   for (std::size_t len = 0; len < good.size(); len += 1 + len / 8) {

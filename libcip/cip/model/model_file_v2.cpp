@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <optional>
 
 #include "cip/core/checksum.h"
@@ -70,6 +71,7 @@ class StreamReader {
   StreamReader(const std::vector<std::uint8_t>* bytes, std::string where)
       : b_(bytes), where_(std::move(where)) {}
   std::uint64_t varint() {
+    if (pos_ < b_->size() && !((*b_)[pos_] & 0x80)) return (*b_)[pos_++];  // most numbers take one byte
     std::uint64_t v = 0;
     for (int shift = 0; shift < 64; shift += 7) {
       if (pos_ >= b_->size()) fail("ends early");
@@ -141,8 +143,17 @@ double coefficientValue(std::int64_t code, double step, int m) {
   if (c < lim) {
     a = static_cast<double>(c);
   } else {
-    const std::int64_t block = (c - lim) / lim, rem = (c - lim) % lim;
-    a = std::ldexp(static_cast<double>(lim + rem), static_cast<int>(std::min<std::int64_t>(block, 4000)));
+    const std::int64_t block = (c - lim) >> m, rem = (c - lim) & (lim - 1);
+    // lim + rem times 2^block: a product by a power of two is exact, as ldexp is (the power is built from
+    // its exponent bits while it is a normal number).
+    if (block < 1000) {
+      const std::uint64_t bits = static_cast<std::uint64_t>(1023 + block) << 52;
+      double power;
+      std::memcpy(&power, &bits, 8);
+      a = static_cast<double>(lim + rem) * power;
+    } else {
+      a = std::ldexp(static_cast<double>(lim + rem), static_cast<int>(std::min<std::int64_t>(block, 4000)));
+    }
   }
   return (code < 0 ? -a : a) * step;
 }
@@ -202,6 +213,21 @@ struct Region {
   }
 };
 
+/// A cell of a brick by its packed local coordinates x + 256 (y + 256 z) (a brick is at most 128 cells a
+/// side): in the order of the file's cell index x + B (y + B z), and taken apart with shifts.
+constexpr std::uint32_t packCell(std::int64_t x, std::int64_t y, std::int64_t z) {
+  return static_cast<std::uint32_t>(x | y << 8 | z << 16);
+}
+constexpr std::int64_t cellX(std::uint32_t c) {
+  return c & 255;
+}
+constexpr std::int64_t cellY(std::uint32_t c) {
+  return (c >> 8) & 255;
+}
+constexpr std::int64_t cellZ(std::uint32_t c) {
+  return c >> 16;
+}
+
 /// What a chunk holds, decoded: the topology every later step (and the writer's own prediction) needs.
 struct ChunkTopology {
   I3 brick{};
@@ -209,30 +235,32 @@ struct ChunkTopology {
   I3 cellCount{};   ///< cells of the brick per axis
   I3 ownedCount{};  ///< owned points per axis (the last brick also owns the last point layer)
   Region region;
-  std::vector<std::uint8_t> sign;        ///< per region point: 1 above the isovalue
-  std::vector<std::uint8_t> rowUniform;  ///< per region row: 1 if all its points share a sign
-  std::vector<std::uint32_t> cells;      ///< present cells: lx + B (ly + B lz), increasing
+  std::size_t words = 0;            ///< 64-bit words per sign row: one more than its points need
+  std::vector<std::uint64_t> sign;  ///< per region row (y fastest, then z): bit i set = point lo[0] + i above
+  std::vector<std::uint32_t> cells;  ///< present cells, packed (packCell), increasing
   std::vector<std::uint8_t> config;
-  std::vector<std::uint32_t> vertexKey;  ///< owned crossed edges: (lx + (B+1)(ly + (B+1) lz)) 3 + axis
+  std::vector<std::uint32_t> rowFirstCell;  ///< per cell row (ly + cellCount[1] lz): its first entry of cells
+  std::vector<std::uint64_t>
+      rowCorners;  ///< per cell row: its corner count, then its model-wide first corner
+  std::vector<std::uint64_t> rowModelCell;  ///< per cell row: the model-wide index of its first cell
+  std::vector<std::uint32_t> vertexKey;     ///< owned crossed edges: (lx + (B+1)(ly + (B+1) lz)) 3 + axis
   std::vector<std::uint16_t> tCode;
-  std::vector<std::uint8_t> vertexFlags;  ///< bit 0, 1: normal component along the first, second other axis
-                                          ///< is zero (grid-point vertices); 5: edge start above; 6: on a
-                                          ///< grid point
-  std::vector<std::uint32_t> faceKey;     ///< owned crossed faces: point key 3 + normal axis
+  std::vector<std::uint8_t> vertexFlags;    ///< bit 0, 1: normal component along the first, second other axis
+                                            ///< is zero (grid-point vertices); 5: edge start above; 6: on a
+                                            ///< grid point
+  std::vector<std::uint32_t> faceKey;       ///< owned crossed faces: point key 3 + normal axis
+  std::vector<std::uint8_t> faceAmbiguous;  ///< 1: the face has four crossings
   std::vector<std::uint32_t> vertexRow,
       faceRow;                            ///< per owned point row: its first entry of vertexKey, faceKey
   std::vector<std::uint8_t> facePairing;  ///< 1: pairs around canonical vertices 0 and 3 (ambiguous faces)
+  std::vector<double> side;               ///< reader: side coefficient per owned face (paper: its residual)
+  std::vector<double> central;            ///< reader: central coefficient per cell
   std::uint64_t vertexBase = 0, faceBase = 0;
   std::vector<std::vector<std::uint8_t>> streams;  ///< the reader keeps the decompressed streams
   std::vector<std::uint32_t> exact;                ///< owned vertices kept in full precision, increasing
   std::vector<double> exactT;
   std::vector<Vec3> exactNormal;
 };
-
-std::uint32_t pointKey(const ChunkTopology& ch, std::int64_t B, const I3& p) {
-  return static_cast<std::uint32_t>((p[0] - ch.origin[0]) +
-                                    (B + 1) * ((p[1] - ch.origin[1]) + (B + 1) * (p[2] - ch.origin[2])));
-}
 
 void setupChunk(const Layout& L, const I3& brick, ChunkTopology& ch) {
   ch.brick = brick;
@@ -243,129 +271,131 @@ void setupChunk(const Layout& L, const I3& brick, ChunkTopology& ch) {
     ch.region.lo[a] = std::max<std::int64_t>(0, ch.origin[a] - 1);
     ch.region.n[a] = std::min(L.dims[a] - 1, ch.origin[a] + L.B + 1) - ch.region.lo[a] + 1;
   }
+  ch.words = static_cast<std::size_t>(ch.region.n[0] / 64 + 2);
 }
 
-/// 1 if grid point p (inside the chunk's region) is above the isovalue.
-std::uint8_t signAt(const ChunkTopology& ch, const I3& p) {
-  return ch.sign[static_cast<std::size_t>(ch.region.index(p))];
+// ---- sign rows as bits ---------------------------------------------------------------------------------
+// A chunk's signs are kept one bit per point, a row in a few words, so that the cells and crossed items of
+// a row come from a handful of word operations instead of a look at every point.
+
+using Word = std::uint64_t;
+
+const Word* signRow(const ChunkTopology& ch, std::int64_t y, std::int64_t z) {
+  return &ch.sign[static_cast<std::size_t>(ch.region.rowIndex(y, z)) * ch.words];
+}
+int bitAt(const Word* row, std::int64_t i) {
+  return static_cast<int>((row[i >> 6] >> (i & 63)) & 1);
+}
+/// Word w of the row moved down by one point (bit i = point i + 1).
+Word nextBits(const Word* row, std::size_t w) {
+  return (row[w] >> 1) | (row[w + 1] << 63);
+}
+/// Bits [from, to) of word w set.
+Word bitRange(std::size_t w, std::int64_t from, std::int64_t to) {
+  const std::int64_t lo = std::clamp<std::int64_t>(from - 64 * static_cast<std::int64_t>(w), 0, 64),
+                     hi = std::clamp<std::int64_t>(to - 64 * static_cast<std::int64_t>(w), 0, 64);
+  if (hi <= lo) return 0;
+  const Word upto = hi == 64 ? ~Word(0) : (Word(1) << hi) - 1;
+  return upto & ~((Word(1) << lo) - 1);
+}
+/// Bits where the four values are not all equal.
+Word notAllEqual(Word a, Word b, Word c, Word d) {
+  return (a | b | c | d) & ~(a & b & c & d);
 }
 
-/// The corners of the face at grid point p across `axis`: p, p + b, p + c, p + b + c (b, c: the other axes).
-std::array<I3, 4> faceCorners(const I3& p, int axis) {
-  const auto o = cube::otherAxes(axis);
-  std::array<I3, 4> q{p, p, p, p};
-  ++q[1][o[0]];
-  ++q[2][o[1]];
-  ++q[3][o[0]];
-  ++q[3][o[1]];
-  return q;
-}
-
-std::uint8_t cellConfig(const ChunkTopology& ch, const I3& c) {
-  std::uint8_t config = 0;
-  for (int v = 0; v < 8; ++v) {
-    const auto o = cube::vertexCoords(v);
-    const I3 p{c[0] + o[0], c[1] + o[1], c[2] + o[2]};
-    config = static_cast<std::uint8_t>(config | (signAt(ch, p) << v));
-  }
-  return config;
-}
-
-/// Whether the point rows (y..y+1, z..z+1) that exist are all uniform with one sign: nothing crosses there.
-bool quietRows(const ChunkTopology& ch, std::int64_t y, std::int64_t z) {
-  const Region& r = ch.region;
-  int s = -1;
-  for (int dz = 0; dz < 2; ++dz)
-    for (int dy = 0; dy < 2; ++dy) {
-      const std::int64_t yy = y + dy, zz = z + dz;
-      if (yy >= r.lo[1] + r.n[1] || zz >= r.lo[2] + r.n[2]) continue;
-      const std::int64_t row = r.rowIndex(yy, zz);
-      if (!ch.rowUniform[static_cast<std::size_t>(row)]) return false;
-      const int rs = ch.sign[static_cast<std::size_t>(row * r.n[0])];
-      if (s >= 0 && rs != s) return false;
-      s = rs;
-    }
-  return true;
-}
-
-/// Present cells from signs and exceptions (reader), or the check that they agree (writer).
-void cellsFromSigns(const Layout& L, ChunkTopology& ch, std::vector<std::uint32_t>& nontrivial) {
+/// Present cells from signs and exceptions (reader), or the check that they agree (writer): the cells of the
+/// brick whose eight points do not all share a sign, in increasing (z, y, x), with their configurations.
+void cellsFromSigns(const ChunkTopology& ch, std::vector<std::uint32_t>& nontrivial,
+                    std::vector<std::uint8_t>& configs) {
   nontrivial.clear();
+  configs.clear();
+  const std::int64_t i0 = ch.origin[0] - ch.region.lo[0];
+  const std::size_t used = static_cast<std::size_t>((i0 + ch.cellCount[0] + 63) / 64);
   for (std::int64_t lz = 0; lz < ch.cellCount[2]; ++lz)
     for (std::int64_t ly = 0; ly < ch.cellCount[1]; ++ly) {
       const std::int64_t y = ch.origin[1] + ly, z = ch.origin[2] + lz;
-      if (quietRows(ch, y, z)) continue;
-      for (std::int64_t lx = 0; lx < ch.cellCount[0]; ++lx) {
-        const std::uint8_t c = cellConfig(ch, {ch.origin[0] + lx, y, z});
-        if (c != 0 && c != 0xFF) nontrivial.push_back(static_cast<std::uint32_t>(lx + L.B * (ly + L.B * lz)));
+      const Word* r[4] = {signRow(ch, y, z), signRow(ch, y + 1, z), signRow(ch, y, z + 1),
+                          signRow(ch, y + 1, z + 1)};
+      for (std::size_t w = 0; w < used; ++w) {
+        Word all = ~Word(0), any = 0;
+        for (const Word* row : r) {
+          const Word a = row[w], b = nextBits(row, w);
+          all &= a & b;
+          any |= a | b;
+        }
+        for (Word bits = any & ~all & bitRange(w, i0, i0 + ch.cellCount[0]); bits; bits &= bits - 1) {
+          const std::int64_t i = 64 * static_cast<std::int64_t>(w) + __builtin_ctzll(bits);
+          int config = 0;
+          for (int d = 0; d < 4; ++d) config |= (bitAt(r[d], i) | bitAt(r[d], i + 1) << 1) << (2 * d);
+          nontrivial.push_back(packCell(i - i0, ly, lz));
+          configs.push_back(static_cast<std::uint8_t>(config));
+        }
       }
     }
 }
 
-/// The owned crossed edges and faces in file order, with the sign-derived flags of each vertex.
+/// The owned crossed edges and faces in file order, with the sign-derived flags of each vertex and which
+/// faces are ambiguous, and where each owned point row's entries start.
 void ownedItems(const Layout& L, ChunkTopology& ch) {
   ch.vertexKey.clear();
   ch.vertexFlags.clear();
   ch.faceKey.clear();
-  auto s = [&](const I3& p) { return signAt(ch, p); };
-  auto inGrid = [&](const I3& p) {
-    return p[0] < L.dims[0] && p[1] < L.dims[1] && p[2] < L.dims[2] && p[0] >= 0 && p[1] >= 0 && p[2] >= 0;
-  };
+  ch.faceAmbiguous.clear();
+  const auto rows = static_cast<std::size_t>((L.B + 1) * (L.B + 1));
+  ch.vertexRow.assign(rows + 1, 0);
+  ch.faceRow.assign(rows + 1, 0);
+  const Region& r = ch.region;
+  const std::int64_t i0 = ch.origin[0] - r.lo[0], iEnd = i0 + ch.ownedCount[0];
+  const std::int64_t lastX = L.dims[0] - 1 - r.lo[0];  // region index of the grid's last point along x
+  const std::size_t used = static_cast<std::size_t>((iEnd + 63) / 64);
   for (std::int64_t lz = 0; lz < ch.ownedCount[2]; ++lz)
     for (std::int64_t ly = 0; ly < ch.ownedCount[1]; ++ly) {
       const std::int64_t y = ch.origin[1] + ly, z = ch.origin[2] + lz;
-      if (quietRows(ch, y, z)) continue;
-      // The four point rows (y..y+1, z..z+1) this row's edges and faces reach; a missing one (beyond the
-      // grid) stands in as this row, and the checks below leave out what would use it.
-      const Region& r = ch.region;
-      const std::uint8_t* row[4];
-      for (int d = 0; d < 4; ++d) {
-        const std::int64_t yy = y + (d & 1), zz = z + (d >> 1);
-        const bool in = yy < r.lo[1] + r.n[1] && zz < r.lo[2] + r.n[2];
-        row[d] = &ch.sign[static_cast<std::size_t>(r.rowIndex(in ? yy : y, in ? zz : z) * r.n[0])];
-      }
-      const std::int64_t xEnd = r.lo[0] + r.n[0] - 1;  // last point of the row
-      for (std::int64_t lx = 0; lx < ch.ownedCount[0]; ++lx) {
-        const std::int64_t x = ch.origin[0] + lx, i = x - r.lo[0], i1 = std::min(x + 1, xEnd) - r.lo[0];
-        const std::uint8_t v = row[0][i];
-        if (row[0][i1] == v && row[1][i] == v && row[1][i1] == v && row[2][i] == v && row[2][i1] == v &&
-            row[3][i] == v && row[3][i1] == v)
-          continue;  // nothing crosses from this point
-        const I3 p{x, y, z};
-        const std::uint32_t key = static_cast<std::uint32_t>(lx + (L.B + 1) * (ly + (L.B + 1) * lz));
-        const int sp = s(p);
-        for (int a = 0; a < 3; ++a) {
-          I3 q = p;
-          ++q[a];
-          if (!inGrid(q) || s(q) == sp) continue;
-          std::uint8_t flags = static_cast<std::uint8_t>(sp << 5);
-          ch.vertexKey.push_back(key * 3 + static_cast<std::uint32_t>(a));
-          ch.vertexFlags.push_back(flags);
+      const bool y1 = y + 1 < L.dims[1], z1 = z + 1 < L.dims[2];
+      // The four point rows this row's edges and faces reach; one beyond the grid stands in as this row,
+      // and the masks leave out what would use it.
+      const Word* s = signRow(ch, y, z);
+      const Word* sy = y1 ? signRow(ch, y + 1, z) : s;
+      const Word* sz = z1 ? signRow(ch, y, z + 1) : s;
+      const Word* syz = y1 && z1 ? signRow(ch, y + 1, z + 1) : s;
+      const std::size_t row = static_cast<std::size_t>(ly + (L.B + 1) * lz);
+      const std::uint32_t rowKey = static_cast<std::uint32_t>((L.B + 1) * (ly + (L.B + 1) * lz));
+      for (std::size_t w = 0; w < used; ++w) {
+        const Word owned = bitRange(w, i0, iEnd), x1 = bitRange(w, 0, lastX);
+        const Word a = s[w], ax = nextBits(s, w), b = sy[w], bx = nextBits(sy, w), c = sz[w],
+                   cx = nextBits(sz, w), d = syz[w];
+        // Edges from each point along x, y, z; faces across x (spanning y, z), y (x, z), z (x, y).
+        const Word e[3] = {(a ^ ax) & x1, y1 ? a ^ b : 0, z1 ? a ^ c : 0};
+        const Word f[3] = {y1 && z1 ? notAllEqual(a, b, c, d) : 0, z1 ? notAllEqual(a, ax, c, cx) & x1 : 0,
+                           y1 ? notAllEqual(a, ax, b, bx) & x1 : 0};
+        // Ambiguous: the face's diagonal points share a sign, the two diagonals differ.
+        const Word amb[3] = {~(a ^ d) & ~(b ^ c) & (a ^ b), ~(a ^ cx) & ~(ax ^ c) & (a ^ ax),
+                             ~(a ^ bx) & ~(ax ^ b) & (a ^ ax)};
+        for (Word bits = (e[0] | e[1] | e[2] | f[0] | f[1] | f[2]) & owned; bits; bits &= bits - 1) {
+          const int bit = __builtin_ctzll(bits);
+          const std::int64_t i = 64 * static_cast<std::int64_t>(w) + bit;
+          const std::uint32_t key = rowKey + static_cast<std::uint32_t>(i - i0);
+          const auto flags = static_cast<std::uint8_t>(((a >> bit) & 1) << 5);
+          for (int axis = 0; axis < 3; ++axis)
+            if ((e[axis] >> bit) & 1) {
+              ch.vertexKey.push_back(key * 3 + static_cast<std::uint32_t>(axis));
+              ch.vertexFlags.push_back(flags);
+            }
+          for (int axis = 0; axis < 3; ++axis)
+            if ((f[axis] >> bit) & 1) {
+              ch.faceKey.push_back(key * 3 + static_cast<std::uint32_t>(axis));
+              ch.faceAmbiguous.push_back(static_cast<std::uint8_t>((amb[axis] >> bit) & 1));
+            }
         }
-        for (int a = 0; a < 3; ++a) {
-          const std::array<I3, 4> q = faceCorners(p, a);
-          if (!inGrid(q[3])) continue;
-          if (s(q[1]) == sp && s(q[2]) == sp && s(q[3]) == sp) continue;
-          ch.faceKey.push_back(key * 3 + static_cast<std::uint32_t>(a));
-        }
       }
+      ch.vertexRow[row + 1] = static_cast<std::uint32_t>(ch.vertexKey.size());
+      ch.faceRow[row + 1] = static_cast<std::uint32_t>(ch.faceKey.size());
     }
-  // Where each point row's entries start, for lookups by point.
-  const auto rows = static_cast<std::size_t>((L.B + 1) * (L.B + 1));
-  auto index = [&](const std::vector<std::uint32_t>& keys, std::vector<std::uint32_t>& start) {
-    start.assign(rows + 1, 0);
-    for (std::uint32_t k : keys) ++start[k / 3 / static_cast<std::uint32_t>(L.B + 1) + 1];
-    for (std::size_t r = 0; r < rows; ++r) start[r + 1] += start[r];
-  };
-  index(ch.vertexKey, ch.vertexRow);
-  index(ch.faceKey, ch.faceRow);
-}
-
-/// Whether the face at grid point p across `axis` has its four crossings (diagonal points share a sign).
-bool ambiguousFace(const ChunkTopology& ch, const I3& p, int axis) {
-  const std::array<I3, 4> q = faceCorners(p, axis);
-  const int s0 = signAt(ch, q[0]), s1 = signAt(ch, q[1]);
-  return s0 == signAt(ch, q[3]) && s1 == signAt(ch, q[2]) && s0 != s1;
+  // Rows past the owned ones (ly beyond ownedCount) end where the row before them does.
+  for (std::size_t row = 1; row <= rows; ++row) {
+    ch.vertexRow[row] = std::max(ch.vertexRow[row], ch.vertexRow[row - 1]);
+    ch.faceRow[row] = std::max(ch.faceRow[row], ch.faceRow[row - 1]);
+  }
 }
 
 I3 keyPoint(const ChunkTopology& ch, std::int64_t B, std::uint32_t pointKeyValue) {
@@ -387,214 +417,351 @@ void gridPointVertexFlags(ChunkTopology& ch, int positionBits) {
       ch.vertexFlags[v] = static_cast<std::uint8_t>(ch.vertexFlags[v] | 64);
 }
 
-// ---- chunk lookup and assembly (shared) ---------------------------------------------------------------
+// ---- linking cells to the vertices and faces of the chunks that own them (shared) ----------------------
+
+constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+
+/// cube::crossedFaces of every configuration (looked up for every cell).
+const std::array<std::uint8_t, 256> kCrossedFaces = [] {
+  std::array<std::uint8_t, 256> t{};
+  for (int c = 0; c < 256; ++c)
+    t[static_cast<std::size_t>(c)] = cube::crossedFaces(static_cast<std::uint8_t>(c));
+  return t;
+}();
+
+/// Per model cell, the model-wide index of the face of each of its cell faces (kNone: not crossed).
+using CellFaces = std::vector<std::array<std::uint32_t, 6>>;
 
 struct Chunks {
   Layout L;
   std::vector<ChunkTopology> list;  ///< in increasing brick key order
   std::vector<std::int64_t> keys;
   const ChunkTopology* find(const I3& brick) const {
+    for (int a = 0; a < 3; ++a)
+      if (brick[a] >= L.nb[a]) return nullptr;
     const std::int64_t k = L.key(brick);
     auto it = std::lower_bound(keys.begin(), keys.end(), k);
     if (it == keys.end() || *it != k) return nullptr;
     return &list[static_cast<std::size_t>(it - keys.begin())];
   }
-  /// The chunk that owns grid point p; `hint` (the asking cell's chunk) is tried first.
-  const ChunkTopology* owner(const I3& p, const ChunkTopology* hint) const {
-    const I3 b = L.pointBrick(p);
-    return hint && hint->brick == b ? hint : find(b);
+};
+
+/// Per cell row (ly + cellCount[1] lz) of a chunk: where its cells start, and how many corners they have.
+void indexCellRows(ChunkTopology& ch) {
+  const auto rows = static_cast<std::size_t>(ch.cellCount[1] * ch.cellCount[2]);
+  ch.rowFirstCell.assign(rows + 1, 0);
+  ch.rowCorners.assign(rows, 0);
+  for (std::size_t j = 0; j < ch.cells.size(); ++j) {
+    const auto row = static_cast<std::size_t>(cellY(ch.cells[j]) + ch.cellCount[1] * cellZ(ch.cells[j]));
+    ++ch.rowFirstCell[row + 1];
+    ch.rowCorners[row] += static_cast<std::uint64_t>(__builtin_popcount(cube::crossedEdges(ch.config[j])));
   }
-  /// Global index of the vertex on the edge from grid point p along `axis`, or -1.
-  std::int64_t vertexOf(const I3& p, int axis, const ChunkTopology* hint) const {
-    const ChunkTopology* ch = owner(p, hint);
-    if (!ch) return -1;
-    const std::int64_t i = rowSearch(ch->vertexKey, ch->vertexRow, pointKey(*ch, L.B, p), axis);
-    return i < 0 ? -1 : static_cast<std::int64_t>(ch->vertexBase) + i;
+  for (std::size_t r = 0; r < rows; ++r) ch.rowFirstCell[r + 1] += ch.rowFirstCell[r];
+}
+
+/// Model-wide positions of every chunk's cell rows: the model's cells are in grid order (z, y, x), so a
+/// layer of cells (one z) runs through the brick rows of its slab of bricks (consecutive in the list), and
+/// each row of cells through the chunks of its brick row in turn. Turns rowCorners into each row's first
+/// corner; returns the cell count and sets `corners` to the corner count.
+std::uint64_t placeCellRows(Chunks& chunks, std::uint64_t& corners) {
+  std::uint64_t cells = 0;
+  corners = 0;
+  auto& list = chunks.list;
+  for (std::size_t slab = 0; slab < list.size();) {
+    std::size_t slabEnd = slab + 1;
+    while (slabEnd < list.size() && list[slabEnd].brick[2] == list[slab].brick[2]) ++slabEnd;
+    for (std::size_t i = slab; i < slabEnd; ++i) list[i].rowModelCell.resize(list[i].rowCorners.size());
+    for (std::int64_t lz = 0; lz < list[slab].cellCount[2]; ++lz)
+      for (std::size_t g = slab; g < slabEnd;) {
+        std::size_t end = g + 1;
+        while (end < slabEnd && list[end].brick[1] == list[g].brick[1]) ++end;
+        for (std::int64_t ly = 0; ly < list[g].cellCount[1]; ++ly)
+          for (std::size_t i = g; i < end; ++i) {
+            ChunkTopology& ch = list[i];
+            const auto r = static_cast<std::size_t>(ly + ch.cellCount[1] * lz);
+            ch.rowModelCell[r] = cells;
+            cells += ch.rowFirstCell[r + 1] - ch.rowFirstCell[r];
+            const std::uint64_t n = ch.rowCorners[r];
+            ch.rowCorners[r] = corners;
+            corners += n;
+          }
+        g = end;
+      }
+    slab = slabEnd;
   }
-  std::int64_t faceOf(const I3& p, int axis, std::uint8_t* pairing, const ChunkTopology* hint) const {
-    const ChunkTopology* ch = owner(p, hint);
-    if (!ch) return -1;
-    const std::int64_t i = rowSearch(ch->faceKey, ch->faceRow, pointKey(*ch, L.B, p), axis);
-    if (i < 0) return -1;
-    if (pairing) *pairing = ch->facePairing[static_cast<std::size_t>(i)];
-    return static_cast<std::int64_t>(ch->faceBase) + i;
+  return cells;
+}
+
+/// One owned point row's entries (vertices or faces) in the chunk that owns it, walked with increasing x.
+class RowCursor {
+ public:
+  void reset(const ChunkTopology* owner, const std::vector<std::uint32_t>& keys,
+             const std::vector<std::uint32_t>& rowStart, std::int64_t B, std::int64_t ly, std::int64_t lz) {
+    if (!owner) {
+      at_ = end_ = 0;
+      return;
+    }
+    const auto row = static_cast<std::size_t>(ly + (B + 1) * lz);
+    key_ = keys.data();
+    at_ = rowStart[row];
+    end_ = rowStart[row + 1];
+    base_ = static_cast<std::uint32_t>(3 * (B + 1) * (ly + (B + 1) * lz));
+  }
+  /// The owner's index of each entry of points lx .. lx + count / 3 - 1, at out[3 (x - lx) + axis].
+  void gather(std::uint32_t lx, std::uint32_t count, std::uint32_t* out) {
+    const std::uint32_t first = base_ + 3 * lx;
+    while (at_ < end_ && key_[at_] < first) ++at_;
+    for (std::uint32_t j = at_; j < end_ && key_[j] < first + count; ++j) out[key_[j] - first] = j;
   }
 
  private:
-  /// Position of key (point, axis) in `keys`, looked for among its point row's entries only.
-  std::int64_t rowSearch(const std::vector<std::uint32_t>& entries,
-                         const std::vector<std::uint32_t>& rowStart, std::uint32_t point, int axis) const {
-    const std::uint32_t key = point * 3 + static_cast<std::uint32_t>(axis);
-    const std::size_t row = point / static_cast<std::uint32_t>(L.B + 1);
-    if (row + 1 >= rowStart.size()) return -1;
-    for (std::uint32_t i = rowStart[row]; i < rowStart[row + 1]; ++i)
-      if (entries[i] == key) return i;
-    return -1;
+  const std::uint32_t* key_ = nullptr;
+  std::uint32_t at_ = 0, end_ = 0, base_ = 0;
+};
+
+/// Where an item at a cell's point offset (dx, dy, dz) along `axis` sits in the lookup tables of a cell:
+/// table (dy + 2 dz), entry 3 dx + axis.
+constexpr int itemSlot(int dx, int dy, int dz, int axis) {
+  return 6 * (dy + 2 * dz) + 3 * dx + axis;
+}
+constexpr int edgeSlot(int e) {
+  const int axis = cube::edgeAxis(e), a = e & 1, b = (e >> 1) & 1;
+  const auto o = cube::otherAxes(axis);
+  int c[3] = {0, 0, 0};
+  c[o[0]] = a;
+  c[o[1]] = b;
+  return itemSlot(c[0], c[1], c[2], axis);
+}
+constexpr int faceSlot(int f) {
+  int c[3] = {0, 0, 0};
+  c[f / 2] = f & 1;
+  return itemSlot(c[0], c[1], c[2], f / 2);
+}
+
+/// The vertices and faces of one cell: for every point of the cell and axis, the owning chunk's index of the
+/// crossed edge and face from there (kNone where there is none).
+struct CellItems {
+  std::array<std::uint32_t, 24> vertex, face;
+  std::array<const ChunkTopology*, 8> owner;  ///< per table and dx
+  /// Model-wide index of the vertex on cell edge e, or kNone.
+  std::uint32_t vertexOn(int e) const {
+    static constexpr std::array<std::uint8_t, 12> kSlot = [] {
+      std::array<std::uint8_t, 12> t{};
+      for (int i = 0; i < 12; ++i) t[static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(edgeSlot(i));
+      return t;
+    }();
+    const int s = kSlot[static_cast<std::size_t>(e)];
+    const std::uint32_t v = vertex[static_cast<std::size_t>(s)];
+    return v == kNone ? kNone
+                      : static_cast<std::uint32_t>(owner[static_cast<std::size_t>(s / 3)]->vertexBase + v);
+  }
+  /// The chunk that owns cell face f, and its index there (kNone: none).
+  std::pair<const ChunkTopology*, std::uint32_t> faceOn(int f) const {
+    static constexpr std::array<std::uint8_t, 6> kSlot = {faceSlot(0), faceSlot(1), faceSlot(2),
+                                                          faceSlot(3), faceSlot(4), faceSlot(5)};
+    const int s = kSlot[static_cast<std::size_t>(f)];
+    return {owner[static_cast<std::size_t>(s / 3)], face[static_cast<std::size_t>(s)]};
   }
 };
 
-/// Where each model cell came from.
-struct CellOrigin {
-  std::uint32_t chunk, local;
-};
-
-/// The model's cells (global order), corners, vertex positions and, per cell face, the global face index.
-struct Skeleton {
-  std::vector<CellOrigin> origin;
-  std::vector<std::array<std::int64_t, 6>> face;
-  std::vector<std::uint8_t> vertexAxis;
-};
-
-Skeleton assemble(const Chunks& chunks, int positionBits, Model& m, const std::string& name) {
-  const Layout& L = chunks.L;
-  Skeleton sk;
-  std::vector<std::pair<std::uint64_t, CellOrigin>> order;
-  std::size_t total = 0;
-  for (const ChunkTopology& ch : chunks.list) total += ch.cells.size();
-  order.reserve(total);
-  const std::uint64_t dx = static_cast<std::uint64_t>(L.dims[0]), dy = static_cast<std::uint64_t>(L.dims[1]);
-  for (std::uint32_t c = 0; c < chunks.list.size(); ++c) {
-    const ChunkTopology& ch = chunks.list[c];
-    for (std::uint32_t i = 0; i < ch.cells.size(); ++i) {
-      const std::uint64_t lx = ch.cells[i] % L.B, ly = (ch.cells[i] / L.B) % L.B,
-                          lz = ch.cells[i] / (L.B * L.B);
-      const std::uint64_t key = (ch.origin[0] + lx) + dx * ((ch.origin[1] + ly) + dy * (ch.origin[2] + lz));
-      order.push_back({key, {c, i}});
-    }
-  }
-  std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-  resizeHuge(m.cells, total);
-  sk.origin.resize(total);
-  sk.face.resize(total);
-  std::vector<std::uint32_t> cornerCount(total);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, total), [&](const tbb::blocked_range<std::size_t>& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const CellOrigin o = order[i].second;
-      sk.origin[i] = o;
-      const ChunkTopology& ch = chunks.list[o.chunk];
-      const std::uint32_t local = ch.cells[o.local];
-      ModelCell& cell = m.cells[i];
-      const I3 idx{ch.origin[0] + local % L.B, ch.origin[1] + (local / L.B) % L.B,
-                   ch.origin[2] + local / (L.B * L.B)};
-      for (int a = 0; a < 3; ++a)
-        cell.index[static_cast<std::size_t>(a)] = static_cast<std::uint32_t>(idx[a]);
-      cell.config = ch.config[o.local];
-      cell.pairing03 = 0;
-      const std::uint8_t faces = cube::crossedFaces(cell.config);
-      for (int f = 0; f < 6; ++f) {
-        sk.face[i][static_cast<std::size_t>(f)] = -1;
-        if (!((faces >> f) & 1)) continue;
-        I3 p = idx;
-        p[f / 2] += f & 1;
-        std::uint8_t pairing = 0;
-        const std::int64_t fi = chunks.faceOf(p, f / 2, &pairing, &ch);
-        if (fi < 0)
-          throw Error(name + ": damaged model file: a crossed face of cell " + std::to_string(i) +
-                      " is missing");
-        sk.face[i][static_cast<std::size_t>(f)] = fi;
-        if (cube::isAmbiguousFace(cell.config, f) && pairing)
-          cell.pairing03 = static_cast<std::uint8_t>(cell.pairing03 | (1u << f));
-      }
-      const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
-      cell.numLoops = static_cast<std::uint8_t>(loops.numLoops);
-      cell.loopSize = loops.loopSize;
-      cornerCount[i] = static_cast<std::uint32_t>(loops.numCorners());
-    }
-  });
-  std::uint64_t corners = 0;
-  for (std::size_t i = 0; i < total; ++i) {
-    m.cells[i].firstCorner = static_cast<std::uint32_t>(corners);
-    corners += cornerCount[i];
-  }
-  if (corners > std::numeric_limits<std::uint32_t>::max()) throw Error(name + ": too many corners");
-  resizeHuge(m.corners, corners);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, total), [&](const tbb::blocked_range<std::size_t>& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const ModelCell& cell = m.cells[i];
-      const ChunkTopology* hint = &chunks.list[sk.origin[i].chunk];
-      const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
-      for (int k = 0; k < loops.numCorners(); ++k) {
-        const int e = loops.edges[static_cast<std::size_t>(k)];
-        const auto s = cube::vertexCoords(cube::edgeVertex(e, 0));
-        const I3 p{cell.index[0] + static_cast<std::int64_t>(s[0]),
-                   cell.index[1] + static_cast<std::int64_t>(s[1]),
-                   cell.index[2] + static_cast<std::int64_t>(s[2])};
-        const std::int64_t v = chunks.vertexOf(p, cube::edgeAxis(e), hint);
-        if (v < 0)
-          throw Error(name + ": damaged model file: a crossed edge of cell " + std::to_string(i) +
-                      " has no vertex");
-        m.corners[cell.firstCorner + static_cast<std::uint32_t>(k)] = static_cast<std::uint32_t>(v);
+/// Calls visit(j, cell, items) for every cell j of chunk `index` in order, with the vertices and faces around
+/// it looked up in the chunks that own them (this one, or those above it): a cursor per point row walks
+/// each row's entries once.
+template <class Visit>
+void linkCells(const Chunks& chunks, std::size_t index, Visit&& visit) {
+  const ChunkTopology& ch = chunks.list[index];
+  const std::int64_t B = chunks.L.B;
+  const ChunkTopology* nb[2][2][2];
+  for (int d = 0; d < 8; ++d)
+    nb[d & 1][(d >> 1) & 1][d >> 2] =
+        d ? chunks.find({ch.brick[0] + (d & 1), ch.brick[1] + ((d >> 1) & 1), ch.brick[2] + (d >> 2)}) : &ch;
+  RowCursor vMain[4], fMain[4], vNext[4], fNext[4];
+  const ChunkTopology* rowOwner[4][2] = {};
+  std::uint32_t currentRow = kNone;
+  CellItems items;
+  for (std::size_t j = 0; j < ch.cells.size(); ++j) {
+    const std::uint32_t local = ch.cells[j];
+    const auto lx = static_cast<std::uint32_t>(cellX(local));
+    const std::int64_t ly = cellY(local), lz = cellZ(local);
+    if (local >> 8 != currentRow) {
+      currentRow = local >> 8;
+      for (int d = 0; d < 4; ++d) {
+        const int dy = d & 1, dz = d >> 1;
+        const bool upY = dy && ly + 1 >= ch.ownedCount[1], upZ = dz && lz + 1 >= ch.ownedCount[2];
+        const std::int64_t py = upY ? 0 : ly + dy, pz = upZ ? 0 : lz + dz;
+        rowOwner[d][0] = nb[0][upY][upZ];
+        rowOwner[d][1] = nb[1][upY][upZ];
+        for (int dx = 0; dx < 2; ++dx) {
+          const ChunkTopology* o = rowOwner[d][dx];
+          RowCursor& v = dx ? vNext[d] : vMain[d];
+          RowCursor& f = dx ? fNext[d] : fMain[d];
+          if (o) v.reset(o, o->vertexKey, o->vertexRow, B, py, pz);
+          if (o) f.reset(o, o->faceKey, o->faceRow, B, py, pz);
+          if (!o) v.reset(nullptr, {}, {}, B, 0, 0), f.reset(nullptr, {}, {}, B, 0, 0);
+        }
       }
     }
-  });
-  // Vertex positions from the crossing parameters.
-  std::uint64_t vertices = 0;
-  for (const ChunkTopology& ch : chunks.list) vertices += ch.vertexKey.size();
-  resizeHuge(m.vertices, vertices);
-  sk.vertexAxis.resize(vertices);
+    items.vertex.fill(kNone);
+    items.face.fill(kNone);
+    const bool xNext = lx + 1 >= ch.ownedCount[0];  // the cell's upper x points belong to the next brick
+    // A cell's edges start at all its points but (1, 1, 1) (point row 3 only at x), its faces at (0, 0, 0)
+    // and one step up each axis: only those entries are looked up.
+    for (int d = 0; d < 4; ++d) {
+      const auto t = static_cast<std::size_t>(6 * d);
+      const bool upperX = d < 3;  // the row has edges (and row 0 faces) at the cell's upper x point
+      vMain[d].gather(lx, upperX && !xNext ? 6 : 3, &items.vertex[t]);
+      if (upperX && xNext) vNext[d].gather(0, 3, &items.vertex[t + 3]);
+      if (d < 3) fMain[d].gather(lx, d == 0 && !xNext ? 6 : 3, &items.face[t]);
+      if (d == 0 && xNext) fNext[d].gather(0, 3, &items.face[t + 3]);
+      items.owner[static_cast<std::size_t>(2 * d)] = rowOwner[d][0];
+      items.owner[static_cast<std::size_t>(2 * d + 1)] = xNext ? rowOwner[d][1] : rowOwner[d][0];
+    }
+    visit(j, I3{ch.origin[0] + lx, ch.origin[1] + ly, ch.origin[2] + lz}, items);
+  }
+}
+
+/// For every vertex and each of the four cells around its edge, in grid order, the vertices after and before
+/// it in that cell's loop (kNone where the cell is not in the model): what its normal is predicted from.
+struct LoopNeighbours {
+  std::array<std::uint32_t, 8> v;
+};
+/// The grid-order place of the cell that has a vertex's edge as its edge e = 4 axis + a + 2 b: the cells
+/// around an edge differ along its two other axes, the higher one the slower in grid order.
+constexpr int aroundSlot(int e) {
+  return 3 - (e & 3);
+}
+
+// ---- decoding a model from its chunks (shared: the writer decodes what it writes) ----------------------
+
+/// The vertices' positions (index coordinates) from their crossing parameters, or kept in full precision.
+void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
   const double scale = 1.0 / maxTCode(positionBits);
-  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t c) {
-    const ChunkTopology& ch = chunks.list[c];
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    const ChunkTopology& ch = chunks.list[i];
     for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
       const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-      const I3 p = keyPoint(ch, L.B, ch.vertexKey[v] / 3);
+      const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
       IsoVertex& vx = m.vertices[ch.vertexBase + v];
       vx.position = Vec3(static_cast<double>(p[0]), static_cast<double>(p[1]), static_cast<double>(p[2]));
       vx.position[axis] += ch.tCode[v] * scale;
       vx.weight = 1.0;
-      sk.vertexAxis[ch.vertexBase + v] = static_cast<std::uint8_t>(axis);
+    }
+    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
+      const std::uint32_t v = ch.exact[k];
+      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+      const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
+      m.vertices[ch.vertexBase + v].position[axis] = static_cast<double>(p[axis]) + ch.exactT[k];
     }
   });
-  return sk;
 }
 
-/// The predicted normal of every vertex: the normal of the marching-cubes polygons around it (the sum of
-/// cross products of its loop neighbours, cells in grid order), pointing to the positive side.
-std::vector<Vec3> predictNormals(const Model& m, const Skeleton& sk,
-                                 const std::vector<std::uint8_t>& startAbove) {
-  const std::size_t V = m.vertices.size();
-  std::vector<Vec3> pred(V, Vec3::Zero());
-  // Corners per vertex in cell order (a counting sort of the corner table keeps it).
-  std::vector<std::uint32_t> start(V + 1, 0);
-  for (std::uint32_t v : m.corners) ++start[v + 1];
-  for (std::size_t v = 0; v < V; ++v) start[v + 1] += start[v];
-  std::vector<Vec3> contribution(m.corners.size());
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, m.cells.size()), [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t i = r.begin(); i < r.end(); ++i) {
-          const ModelCell& cell = m.cells[i];
-          const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
-          std::array<int, 12> prev{};
-          for (int k = 0; k < loops.numCorners(); ++k)
-            prev[static_cast<std::size_t>(loops.nextCorner(k))] = k;
-          for (int k = 0; k < loops.numCorners(); ++k) {
-            const Vec3& p = m.vertices[m.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]].position;
-            const Vec3& a =
-                m.vertices[m.corners[cell.firstCorner + static_cast<std::uint32_t>(loops.nextCorner(k))]]
-                    .position;
-            const Vec3& b = m.vertices[m.corners[cell.firstCorner + static_cast<std::uint32_t>(
-                                                                        prev[static_cast<std::size_t>(k)])]]
-                                .position;
-            contribution[cell.firstCorner + static_cast<std::uint32_t>(k)] = (a - p).cross(b - p);
-          }
-        }
-      });
-  std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
-  std::vector<std::uint32_t> byVertex(m.corners.size());
-  for (std::uint32_t c = 0; c < m.corners.size(); ++c) byVertex[fill[m.corners[c]]++] = c;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V), [&](const tbb::blocked_range<std::size_t>& r) {
-    for (std::size_t v = r.begin(); v < r.end(); ++v) {
-      Vec3 sum = Vec3::Zero();
-      for (std::uint32_t j = start[v]; j < start[v + 1]; ++j) sum += contribution[byVertex[j]];
-      Vec3 towards = Vec3::Zero();
-      towards[sk.vertexAxis[v]] = startAbove[v] ? -1.0 : 1.0;
-      const double len = sum.norm();
-      Vec3 n = (len > 0 && std::isfinite(len)) ? Vec3(sum / len) : towards;
-      if (n.dot(towards) < 0) n = -n;
-      pred[v] = n;
-    }
+/// Fills the model's cells (index, configuration, pairings, loops, corners, and the coefficients the chunks
+/// carry) and every vertex's loop neighbours, one pass per chunk; records each cell's faces (model-wide face
+/// index per cell face, kNone) when asked. The model's tables are sized here. The pairings are the chunks'
+/// (reader), or those of `source`'s cells (writer), whose cells must then be the ones the signs give.
+void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, CellFaces* cellFaces,
+               const Model* source, const std::string& name) {
+  std::uint64_t corners = 0, vertices = 0;
+  const std::uint64_t cells = placeCellRows(chunks, corners);
+  if (corners > std::numeric_limits<std::uint32_t>::max()) throw Error(name + ": too many corners");
+  if (source && source->cells.size() != cells)
+    throw Error(name + ": the model cannot be written in format 2: its cells do not follow from its signs");
+  for (const ChunkTopology& ch : chunks.list) vertices += ch.vertexKey.size();
+  resizeHuge(m.cells, cells);
+  resizeHuge(m.corners, corners);
+  resizeHuge(m.vertices, vertices);
+  around.resize(vertices);
+  if (cellFaces) cellFaces->resize(cells);
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    const ChunkTopology& ch = chunks.list[i];
+    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) around[ch.vertexBase + v].v.fill(kNone);
   });
-  return pred;
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    const ChunkTopology& ch = chunks.list[i];
+    std::size_t row = kNone;
+    std::uint64_t cellAt = 0, cornerAt = 0;
+    linkCells(chunks, i, [&](std::size_t j, const I3& idx, const CellItems& items) {
+      const std::uint32_t local = ch.cells[j];
+      const auto r = static_cast<std::size_t>(cellY(local) + ch.cellCount[1] * cellZ(local));
+      if (r != row) {
+        row = r;
+        cellAt = ch.rowModelCell[r];
+        cornerAt = ch.rowCorners[r];
+      }
+      const std::uint64_t c = cellAt++;
+      ModelCell& cell = m.cells[c];
+      for (int a = 0; a < 3; ++a)
+        cell.index[static_cast<std::size_t>(a)] = static_cast<std::uint32_t>(idx[a]);
+      cell.config = ch.config[j];
+      cell.pairing03 = 0;
+      if (source && (source->cells[c].index != cell.index || source->cells[c].config != cell.config))
+        throw Error(name +
+                    ": the model cannot be written in format 2: its cells do not follow from its signs");
+      const std::uint8_t faces = kCrossedFaces[cell.config];
+      for (int f = 0; f < 6; ++f) {
+        double w = 0;
+        if ((faces >> f) & 1) {
+          const auto [owner, fl] = items.faceOn(f);
+          if (fl == kNone)
+            throw Error(name + ": damaged model file: a crossed face of cell " + std::to_string(c) +
+                        " is missing");
+          const bool paired = source ? (source->cells[c].pairing03 >> f) & 1 : owner->facePairing[fl];
+          if (paired && cube::isAmbiguousFace(cell.config, f))
+            cell.pairing03 = static_cast<std::uint8_t>(cell.pairing03 | (1u << f));
+          if (!owner->side.empty()) w = owner->side[fl];
+          if (cellFaces)
+            (*cellFaces)[c][static_cast<std::size_t>(f)] = static_cast<std::uint32_t>(owner->faceBase + fl);
+        } else if (cellFaces) {
+          (*cellFaces)[c][static_cast<std::size_t>(f)] = kNone;
+        }
+        cell.faceCoefficient[static_cast<std::size_t>(f)] = w;
+      }
+      cell.central = ch.central.empty() ? 0.0 : ch.central[j];
+      const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
+      cell.numLoops = static_cast<std::uint8_t>(loops.numLoops);
+      cell.loopSize = loops.loopSize;
+      cell.firstCorner = static_cast<std::uint32_t>(cornerAt);
+      const int n = loops.numCorners();
+      std::uint32_t* corner = &m.corners[cornerAt];
+      cornerAt += static_cast<std::uint64_t>(n);
+      for (int k = 0; k < n; ++k) {
+        corner[k] = items.vertexOn(loops.edges[static_cast<std::size_t>(k)]);
+        if (corner[k] == kNone)
+          throw Error(name + ": damaged model file: a crossed edge of cell " + std::to_string(c) +
+                      " has no vertex");
+      }
+      for (int l = 0, start = 0; l < loops.numLoops;
+           start += loops.loopSize[static_cast<std::size_t>(l)], ++l) {
+        const int size = loops.loopSize[static_cast<std::size_t>(l)];
+        for (int k = 0; k < size; ++k) {
+          const int e = loops.edges[static_cast<std::size_t>(start + k)];
+          std::uint32_t* slot = &around[corner[start + k]].v[static_cast<std::size_t>(2 * aroundSlot(e))];
+          slot[0] = corner[start + (k + 1 < size ? k + 1 : 0)];
+          slot[1] = corner[start + (k > 0 ? k - 1 : size - 1)];
+        }
+      }
+    });
+  });
+}
+
+/// The predicted normal of vertex g: the normal of the marching-cubes polygons around it (the sum of cross
+/// products of its loop neighbours, cells in grid order), pointing to the positive side.
+Vec3 predictedNormal(const Model& m, const LoopNeighbours& around, std::size_t g, int axis, bool startAbove) {
+  const Vec3& p = m.vertices[g].position;
+  Vec3 sum = Vec3::Zero();
+  for (int s = 0; s < 4; ++s) {
+    const std::uint32_t next = around.v[static_cast<std::size_t>(2 * s)];
+    if (next == kNone) continue;
+    const Vec3& a = m.vertices[next].position;
+    const Vec3& b = m.vertices[around.v[static_cast<std::size_t>(2 * s + 1)]].position;
+    sum += (a - p).cross(b - p);
+  }
+  Vec3 towards = Vec3::Zero();
+  towards[axis] = startAbove ? -1.0 : 1.0;
+  const double len = sum.norm();
+  Vec3 n = (len > 0 && std::isfinite(len)) ? Vec3(sum / len) : towards;
+  if (n.dot(towards) < 0) n = -n;
+  return n;
 }
 
 /// The stored normal of a vertex from its prediction and residual code.
@@ -638,51 +805,33 @@ void normalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uin
       }
 }
 
-std::vector<std::uint8_t> startAboveFlags(const Chunks& chunks, std::size_t V) {
-  std::vector<std::uint8_t> out(V);
-  for (const ChunkTopology& ch : chunks.list)
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v)
-      out[ch.vertexBase + v] = (ch.vertexFlags[v] >> 5) & 1;
-  return out;
-}
-
-using NormalCodes = std::vector<std::array<std::int64_t, 2>>;
-
-/// Sets every vertex normal from its prediction and residual code (both in file order).
-void applyNormalCodes(Model& m, const Chunks& chunks, const Skeleton& sk, const std::vector<Vec3>& pred,
-                      const NormalCodes& codes, double step) {
+/// Sets every vertex normal from its prediction and the residual code that `codeOf(chunk)` gives for each of
+/// the chunk's vertices (the reader reads it, the writer chooses it), then puts the full-precision normals.
+template <class CodeOf>
+void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbours>& around, double step,
+                   CodeOf&& codeOf) {
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
+    auto code = codeOf(i);
     for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
       const std::size_t g = ch.vertexBase + v;
-      m.vertices[g].normal =
-          normalFromCode(pred[g], codes[g][0], codes[g][1], step, sk.vertexAxis[g], ch.vertexFlags[v]);
+      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+      const std::uint8_t flags = ch.vertexFlags[v];
+      const Vec3 pred = predictedNormal(m, around[g], g, axis, (flags >> 5) & 1);
+      std::int64_t qu = 0, qv = 0;
+      code(v, pred, qu, qv);
+      m.vertices[g].normal = normalFromCode(pred, qu, qv, step, axis, flags);
     }
-  });
-}
-
-/// Vertices kept in full precision: their crossing parameters (before normals are predicted) ...
-void applyExactPositions(Model& m, const Chunks& chunks, const Skeleton& sk) {
-  for (const ChunkTopology& ch : chunks.list)
-    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
-      const std::size_t g = ch.vertexBase + ch.exact[k];
-      const int axis = sk.vertexAxis[g];
-      const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[ch.exact[k]] / 3);
-      m.vertices[g].position[axis] = static_cast<double>(p[axis]) + ch.exactT[k];
-    }
-}
-/// ... and their normals (after the others are decoded).
-void applyExactNormals(Model& m, const Chunks& chunks) {
-  for (const ChunkTopology& ch : chunks.list)
     for (std::size_t k = 0; k < ch.exact.size(); ++k)
       m.vertices[ch.vertexBase + ch.exact[k]].normal = ch.exactNormal[k];
+  });
 }
 
 /// The paper's side coefficient of every face (global face order) from the model's corners as stored: what
 /// the file codes the paper method's side coefficients against (a well-conditioned face then costs a zero).
 /// Each face is computed once, by the cell it bounds from below if that cell is in the model, else by the
 /// other (both would compute the same value: patch_coefficients.h).
-std::vector<double> paperSidePrediction(const Model& m, const Skeleton& sk, std::size_t faces) {
+std::vector<double> paperSidePrediction(const Model& m, const CellFaces& cellFaces, std::size_t faces) {
   std::vector<double> pred(faces, 0.0);
   std::vector<std::uint8_t> done(faces, 0);
   for (int pass = 0; pass < 2; ++pass)
@@ -694,7 +843,7 @@ std::vector<double> paperSidePrediction(const Model& m, const Skeleton& sk, std:
             std::optional<CornerPatch> patch;
             for (int f = pass; f < 6; f += 2) {
               if (!((loops.faceMask >> f) & 1)) continue;
-              const auto fi = static_cast<std::size_t>(sk.face[c][static_cast<std::size_t>(f)]);
+              const std::uint32_t fi = cellFaces[c][static_cast<std::size_t>(f)];
               if (pass == 1 && done[fi]) continue;
               if (!patch) patch = m.patch(c, loops);
               pred[fi] = fitFaceCoefficient(faceCrossingsOf(*patch, f, (cell.pairing03 >> f) & 1));
@@ -712,109 +861,117 @@ std::vector<double> paperSidePrediction(const Model& m, const Skeleton& sk, std:
 
 namespace {
 
-/// The model's cells around one chunk (indices from the region's first point - 1 to its last), by grid index:
-/// the writer's lookups, filled while the chunk's signs are.
-struct CellFinder {
-  I3 lo{}, n{};
-  std::vector<std::int64_t> cell;  ///< model cell, or -1
-  void reset(const Region& r) {
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = r.lo[a] - 1;
-      n[a] = r.n[a] + 1;
-    }
-    cell.assign(static_cast<std::size_t>(n[0] * n[1] * n[2]), -1);
-  }
-  std::int64_t& at(const I3& c) {
-    return cell[static_cast<std::size_t>((c[0] - lo[0]) + n[0] * ((c[1] - lo[1]) + n[1] * (c[2] - lo[2])))];
-  }
-  std::int64_t find(const I3& c) const {
-    for (int a = 0; a < 3; ++a)
-      if (c[a] < lo[a] || c[a] >= lo[a] + n[a]) return -1;
-    return cell[static_cast<std::size_t>((c[0] - lo[0]) + n[0] * ((c[1] - lo[1]) + n[1] * (c[2] - lo[2])))];
+/// The model's cells in the rows of cells around one chunk's region (y and z from the region's first point -
+/// 1 to its last, x likewise): each row's range of Model::cells, found while the chunk's signs are.
+struct ModelRows {
+  std::int64_t y0 = 0, z0 = 0, ny = 0;
+  std::vector<std::pair<std::size_t, std::size_t>> range;
+  std::pair<std::size_t, std::size_t>& at(std::int64_t y, std::int64_t z) {
+    return range[static_cast<std::size_t>((y - y0) + ny * (z - z0))];
   }
 };
 
 void encodeRows(const ChunkTopology& ch, std::vector<std::uint8_t>& out) {
   const Region& r = ch.region;
+  const std::size_t used = static_cast<std::size_t>((r.n[0] + 63) / 64);
   for (std::int64_t row = 0; row < r.n[1] * r.n[2]; ++row) {
-    const std::uint8_t* s = &ch.sign[static_cast<std::size_t>(row * r.n[0])];
+    const Word* s = &ch.sign[static_cast<std::size_t>(row) * ch.words];
+    // Bit i: the sign changes between points i and i + 1.
+    Word change[3] = {0, 0, 0};
     std::uint64_t transitions = 0;
-    for (std::int64_t x = 1; x < r.n[0]; ++x) transitions += s[x] != s[x - 1];
-    putVarint(out, (transitions << 1) | s[0]);
-    for (std::int64_t x = 1; x < r.n[0]; ++x)
-      if (s[x] != s[x - 1]) out.push_back(static_cast<std::uint8_t>(x));
-  }
-}
-
-void markUniformRows(ChunkTopology& ch) {
-  const Region& r = ch.region;
-  ch.rowUniform.assign(static_cast<std::size_t>(r.n[1] * r.n[2]), 1);
-  for (std::int64_t row = 0; row < r.n[1] * r.n[2]; ++row) {
-    const std::uint8_t* s = &ch.sign[static_cast<std::size_t>(row * r.n[0])];
-    for (std::int64_t x = 1; x < r.n[0]; ++x)
-      if (s[x] != s[0]) {
-        ch.rowUniform[static_cast<std::size_t>(row)] = 0;
-        break;
-      }
+    for (std::size_t w = 0; w < used; ++w) {
+      change[w] = (s[w] ^ nextBits(s, w)) & bitRange(w, 0, r.n[0] - 1);
+      transitions += static_cast<std::uint64_t>(__builtin_popcountll(change[w]));
+    }
+    putVarint(out, (transitions << 1) | (s[0] & 1));
+    for (std::size_t w = 0; w < used; ++w)
+      for (Word bits = change[w]; bits; bits &= bits - 1)
+        out.push_back(
+            static_cast<std::uint8_t>(64 * w + static_cast<std::size_t>(__builtin_ctzll(bits)) + 1));
   }
 }
 
 /// Signs of the region's points from the model's cells; points no cell decides take the sign of their row's
 /// decided neighbour, and rows with none that of an adjacent row (exactly the volume's own signs when every
 /// crossed cell is in the model).
-void signsFromModel(const Model& m, ChunkTopology& ch, CellFinder& finder, const std::string& name) {
+void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, const std::string& name) {
   const Region& r = ch.region;
-  finder.reset(r);
-  const std::size_t n = static_cast<std::size_t>(r.n[0] * r.n[1] * r.n[2]);
-  std::vector<std::int8_t> s(n, -1);
-  auto rowKey = [](std::uint32_t i, std::uint32_t j, std::uint32_t k) {
-    return std::array<std::uint32_t, 3>{k, j, i};
+  cellRows.y0 = r.lo[1] - 1;
+  cellRows.z0 = r.lo[2] - 1;
+  cellRows.ny = r.n[1] + 1;
+  cellRows.range.assign(static_cast<std::size_t>(cellRows.ny * (r.n[2] + 1)), {0, 0});
+  const std::int64_t rows = r.n[1] * r.n[2];
+  const std::size_t W = ch.words;
+  // Per row: which points some cell decides, and their signs (ch.sign).
+  std::vector<Word> known(static_cast<std::size_t>(rows) * W, 0);
+  ch.sign.assign(static_cast<std::size_t>(rows) * W, 0);
+  auto before = [](const ModelCell& a, std::int64_t i, std::int64_t j, std::int64_t k) {
+    if (a.index[2] != k) return a.index[2] < k;
+    if (a.index[1] != j) return a.index[1] < j;
+    return a.index[0] < i;
   };
   const std::int64_t iFirst = std::max<std::int64_t>(0, r.lo[0] - 1), iEnd = r.lo[0] + r.n[0];
+  auto it = m.cells.begin();
   for (std::int64_t k = std::max<std::int64_t>(0, r.lo[2] - 1); k < r.lo[2] + r.n[2]; ++k)
     for (std::int64_t j = std::max<std::int64_t>(0, r.lo[1] - 1); j < r.lo[1] + r.n[1]; ++j) {
-      const auto target = rowKey(static_cast<std::uint32_t>(iFirst), static_cast<std::uint32_t>(j),
-                                 static_cast<std::uint32_t>(k));
-      auto it = std::lower_bound(
-          m.cells.begin(), m.cells.end(), target,
-          [&](const ModelCell& a, const auto& t) { return rowKey(a.index[0], a.index[1], a.index[2]) < t; });
+      // The row's first cell, searched forward from the last row's (galloping, then bisecting).
+      if (it != m.cells.end() && before(*it, iFirst, j, k)) {
+        auto lo = it, hi = it;
+        for (std::ptrdiff_t step = 1; hi != m.cells.end() && before(*hi, iFirst, j, k); step *= 2) {
+          lo = hi;
+          hi = m.cells.end() - lo > step ? lo + step : m.cells.end();
+        }
+        it = std::lower_bound(lo, hi, 0, [&](const ModelCell& a, int) { return before(a, iFirst, j, k); });
+      }
+      auto& range = cellRows.at(j, k);
+      range.first = range.second = static_cast<std::size_t>(it - m.cells.begin());
       for (; it != m.cells.end() && it->index[1] == j && it->index[2] == k && it->index[0] < iEnd; ++it) {
         const ModelCell& cell = *it;
         const std::int64_t i = cell.index[0];
-        finder.at({i, j, k}) = it - m.cells.begin();
+        range.second = static_cast<std::size_t>(it - m.cells.begin()) + 1;
         for (int v = 0; v < 8; ++v) {
           const auto o = cube::vertexCoords(v);
           const I3 p{i + o[0], j + o[1], k + o[2]};
           if (!r.contains(p)) continue;
-          std::int8_t& t = s[static_cast<std::size_t>(r.index(p))];
-          const std::int8_t sv = static_cast<std::int8_t>((cell.config >> v) & 1);
-          if (t >= 0 && t != sv)
+          const std::size_t x = static_cast<std::size_t>(p[0] - r.lo[0]);
+          const std::size_t w = static_cast<std::size_t>(r.rowIndex(p[1], p[2])) * W + x / 64;
+          const Word bit = Word(1) << (x % 64), sv = ((cell.config >> v) & 1) ? bit : 0;
+          if ((known[w] & bit) && (ch.sign[w] & bit) != sv)
             throw Error(
                 name +
                 ": the model cannot be written in format 2: cells disagree on the sign of grid point (" +
                 std::to_string(p[0]) + "," + std::to_string(p[1]) + "," + std::to_string(p[2]) + ")");
-          t = sv;
+          known[w] |= bit;
+          ch.sign[w] |= sv;
         }
       }
     }
-  // Fill rows from their decided points; rows without any from adjacent rows (breadth first).
-  const std::int64_t rows = r.n[1] * r.n[2];
+  // Fill rows from their decided points (a point takes the sign of the decided one before it, leading ones
+  // that of the first); rows without any from adjacent rows (breadth first).
+  const std::size_t used = static_cast<std::size_t>((r.n[0] + 63) / 64);
   std::vector<std::int8_t> rowSign(static_cast<std::size_t>(rows), -1);
   std::vector<std::int64_t> queue;
   for (std::int64_t row = 0; row < rows; ++row) {
-    std::int8_t* x = &s[static_cast<std::size_t>(row * r.n[0])];
-    std::int8_t last = -1;
-    for (std::int64_t i = 0; i < r.n[0]; ++i)
-      if (x[i] >= 0) {
-        last = x[i];
-        break;
+    const Word* kn = &known[static_cast<std::size_t>(row) * W];
+    Word* sg = &ch.sign[static_cast<std::size_t>(row) * W];
+    std::int64_t from = 0;  // first point of the undecided run before the next decided point
+    int last = -1;
+    for (std::size_t w = 0; w < used; ++w)
+      for (Word bits = kn[w]; bits; bits &= bits - 1) {
+        const std::int64_t i = 64 * static_cast<std::int64_t>(w) + __builtin_ctzll(bits);
+        const int value = bitAt(sg, i);
+        if ((last < 0 ? value : last) == 1)
+          for (std::size_t u = static_cast<std::size_t>(from >> 6);
+               from < i && u <= static_cast<std::size_t>((i - 1) >> 6); ++u)
+            sg[u] |= bitRange(u, from, i);
+        last = value;
+        from = i + 1;
       }
     if (last < 0) continue;
-    for (std::int64_t i = 0; i < r.n[0]; ++i) {
-      if (x[i] < 0) x[i] = last;
-      last = x[i];
-    }
-    rowSign[static_cast<std::size_t>(row)] = x[0];
+    if (last == 1)
+      for (std::size_t u = static_cast<std::size_t>(from >> 6); from < r.n[0] && u < used; ++u)
+        sg[u] |= bitRange(u, from, r.n[0]);
+    rowSign[static_cast<std::size_t>(row)] = static_cast<std::int8_t>(sg[0] & 1);
     queue.push_back(row);
   }
   for (std::size_t head = 0; head < queue.size(); ++head) {
@@ -825,42 +982,12 @@ void signsFromModel(const Model& m, ChunkTopology& ch, CellFinder& finder, const
       const std::int64_t qr = q[0] + r.n[1] * q[1];
       if (rowSign[static_cast<std::size_t>(qr)] >= 0) continue;
       rowSign[static_cast<std::size_t>(qr)] = rowSign[static_cast<std::size_t>(row)];
-      std::fill_n(&s[static_cast<std::size_t>(qr * r.n[0])], r.n[0], rowSign[static_cast<std::size_t>(row)]);
+      if (rowSign[static_cast<std::size_t>(row)])
+        for (std::size_t u = 0; u < used; ++u)
+          ch.sign[static_cast<std::size_t>(qr) * W + u] = bitRange(u, 0, r.n[0]);
       queue.push_back(qr);
     }
   }
-  ch.sign.resize(n);
-  for (std::size_t i = 0; i < n; ++i) ch.sign[i] = static_cast<std::uint8_t>(std::max<std::int8_t>(s[i], 0));
-  markUniformRows(ch);
-}
-
-/// The model vertex on the edge from grid point p along `axis`, from any present cell that has it, or -1
-/// (a crossing no present cell uses); all present cells must agree.
-std::int64_t modelVertexOn(const Model& m, const CellFinder& finder, const I3& p, int axis,
-                           const std::string& name) {
-  const auto o = cube::otherAxes(axis);
-  std::int64_t found = -1;
-  for (int db = 0; db < 2; ++db)
-    for (int dc = 0; dc < 2; ++dc) {
-      I3 c = p;
-      c[o[0]] -= db;
-      c[o[1]] -= dc;
-      const std::int64_t ci = finder.find(c);
-      if (ci < 0) continue;
-      const int e = cube::edgeIndex(axis, db, dc);
-      const ModelCell& cell = m.cells[static_cast<std::size_t>(ci)];
-      const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
-      for (int k = 0; k < loops.numCorners(); ++k)
-        if (loops.edges[static_cast<std::size_t>(k)] == e) {
-          const std::int64_t v = m.corners[cell.firstCorner + static_cast<std::uint32_t>(k)];
-          if (found >= 0 && found != v)
-            throw Error(
-                name +
-                ": the model cannot be written in format 2: cells around a grid edge use different vertices");
-          found = v;
-        }
-    }
-  return found;
 }
 
 struct ChunkSource {
@@ -869,27 +996,35 @@ struct ChunkSource {
   std::vector<std::int64_t> cell;    ///< model cell per present cell
 };
 
-void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Options& q, ChunkTopology& ch,
-                         ChunkSource& src, const std::string& name) {
-  CellFinder finder;
-  signsFromModel(m, ch, finder, name);
+/// The chunk's signs (from the model's cells), sign rows, cells and exceptions, and owned crossed items.
+void buildChunkFromModel(const Model& m, const Layout& L, ChunkTopology& ch, ChunkSource& src,
+                         const std::string& name) {
+  ModelRows rows;
+  signsFromModel(m, ch, rows, name);
   ch.streams.assign(kNumStreams, {});
   encodeRows(ch, ch.streams[kRows]);
   // Present cells and the crossed ones the model leaves out.
   std::vector<std::uint32_t> nontrivial;
-  cellsFromSigns(L, ch, nontrivial);
+  std::vector<std::uint8_t> configs;
+  cellsFromSigns(ch, nontrivial, configs);
   std::vector<std::uint32_t> exceptions;
+  std::uint32_t row = kNone;
+  std::size_t at = 0, end = 0;
   for (std::uint32_t local : nontrivial) {
-    const I3 c{ch.origin[0] + local % L.B, ch.origin[1] + (local / L.B) % L.B,
-               ch.origin[2] + local / (L.B * L.B)};
-    const std::int64_t ci = finder.find(c);
-    if (ci < 0) {
-      exceptions.push_back(local);
+    const I3 c{ch.origin[0] + cellX(local), ch.origin[1] + cellY(local), ch.origin[2] + cellZ(local)};
+    if (local >> 8 != row) {
+      row = local >> 8;
+      std::tie(at, end) = rows.at(c[1], c[2]);
+    }
+    while (at < end && m.cells[at].index[0] < c[0]) ++at;
+    if (at == end || m.cells[at].index[0] != c[0]) {
+      exceptions.push_back(
+          static_cast<std::uint32_t>(cellX(local) + L.B * (cellY(local) + L.B * cellZ(local))));
       continue;
     }
     ch.cells.push_back(local);
-    ch.config.push_back(m.cells[static_cast<std::size_t>(ci)].config);
-    src.cell.push_back(ci);
+    ch.config.push_back(m.cells[at].config);
+    src.cell.push_back(static_cast<std::int64_t>(at));
   }
   putVarint(ch.streams[kExceptions], exceptions.size());
   std::uint32_t prev = 0;
@@ -898,17 +1033,58 @@ void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Optio
     prev = e + 1;
   }
   ownedItems(L, ch);
-  // Vertices: crossing parameters.
+}
+
+/// Which model vertex each vertex of the file is, and which model cells each face of the file bounds: per
+/// vertex the model vertex of each cell around its edge (in grid order), per face the cell on each side.
+struct ModelUse {
+  std::vector<std::array<std::uint32_t, 4>> vertex;
+  std::vector<std::array<std::uint32_t, 2>> face;
+};
+
+ModelUse modelUse(const Model& m, const Model& sk, const CellFaces& cellFaces, std::size_t faces) {
+  ModelUse use;
+  use.vertex.assign(sk.vertices.size(), {kNone, kNone, kNone, kNone});
+  use.face.assign(faces, {kNone, kNone});
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, sk.cells.size()), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t c = r.begin(); c < r.end(); ++c) {
+          const ModelCell& cell = sk.cells[c];
+          const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
+          for (int k = 0; k < loops.numCorners(); ++k)
+            use.vertex[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]]
+                      [static_cast<std::size_t>(aroundSlot(loops.edges[static_cast<std::size_t>(k)]))] =
+                m.corners[m.cells[c].firstCorner + static_cast<std::uint32_t>(k)];
+          for (int f = 0; f < 6; ++f)
+            if (cellFaces[c][static_cast<std::size_t>(f)] != kNone)
+              use.face[cellFaces[c][static_cast<std::size_t>(f)]][static_cast<std::size_t>(f & 1)] =
+                  static_cast<std::uint32_t>(c);
+        }
+      });
+  return use;
+}
+
+/// The chunk's crossing parameters, zero normal components, pairings and side coefficients from the model.
+void codeChunkItems(const Model& m, const Layout& L, const ModelFileV2Options& q, const ModelUse& use,
+                    ChunkTopology& ch, ChunkSource& src, const std::string& name) {
   const std::uint16_t tMax = maxTCode(q.positionBits);
   ch.tCode.resize(ch.vertexKey.size());
   src.vertex.resize(ch.vertexKey.size());
   for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
     const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-    const I3 p = keyPoint(ch, L.B, ch.vertexKey[v] / 3);
-    const std::int64_t mv = modelVertexOn(m, finder, p, axis, name);
+    std::int64_t mv = -1;
+    for (std::uint32_t u : use.vertex[ch.vertexBase + v]) {
+      if (u == kNone) continue;
+      if (mv >= 0 && mv != static_cast<std::int64_t>(u))
+        throw Error(
+            name +
+            ": the model cannot be written in format 2: cells around a grid edge use different vertices");
+      mv = u;
+    }
     src.vertex[v] = mv;
     double t = 0.5;
     if (mv >= 0) {
+      const I3 p = keyPoint(ch, L.B, ch.vertexKey[v] / 3);
       const Vec3& pos = m.vertices[static_cast<std::size_t>(mv)].position;
       t = pos[axis] - static_cast<double>(p[axis]);
       if (!(t >= 0 && t <= 1))
@@ -935,17 +1111,14 @@ void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Optio
   src.side.resize(ch.faceKey.size());
   for (std::size_t f = 0; f < ch.faceKey.size(); ++f) {
     const int axis = static_cast<int>(ch.faceKey[f] % 3);
-    const I3 p = keyPoint(ch, L.B, ch.faceKey[f] / 3);
     bool seen = false;
-    const bool ambiguous = ambiguousFace(ch, p, axis);
+    const bool ambiguous = ch.faceAmbiguous[f];
     std::uint8_t pairing = 0;
     double side = 0;
     for (int s = 0; s < 2; ++s) {
-      I3 c = p;
-      c[axis] -= s;
-      const std::int64_t ci = finder.find(c);
-      if (ci < 0) continue;
-      const ModelCell& cell = m.cells[static_cast<std::size_t>(ci)];
+      const std::uint32_t ci = use.face[ch.faceBase + f][static_cast<std::size_t>(s)];
+      if (ci == kNone) continue;
+      const ModelCell& cell = m.cells[ci];
       const int face = 2 * axis + s;
       const std::uint8_t pr = (cell.pairing03 >> face) & 1;
       if (seen &&
@@ -966,7 +1139,7 @@ void buildChunkFromModel(const Model& m, const Layout& L, const ModelFileV2Optio
 /// ill-conditioned (the one from quantised corners differs from the built one by more than 1 %), the corners
 /// of the cells around that face are kept in full precision instead, so that the recomputed coefficients and
 /// the cells' corner planes are the built ones. Returns whether any vertex is kept.
-bool keepIllConditionedCells(const Model& m, const Model& sk, const Skeleton& skel, Chunks& chunks,
+bool keepIllConditionedCells(const Model& m, const Model& sk, const CellFaces& cellFaces, Chunks& chunks,
                              const std::vector<ChunkSource>& sources, const std::vector<double>& prediction) {
   std::vector<std::uint8_t> badFace(prediction.size(), 0);
   for (std::size_t i = 0; i < chunks.list.size(); ++i)
@@ -978,8 +1151,8 @@ bool keepIllConditionedCells(const Model& m, const Model& sk, const Skeleton& sk
   bool any = false;
   for (std::size_t c = 0; c < sk.cells.size(); ++c) {
     bool bad = false;
-    for (std::int64_t fi : skel.face[c])
-      if (fi >= 0 && badFace[static_cast<std::size_t>(fi)]) bad = true;
+    for (std::uint32_t fi : cellFaces[c])
+      if (fi != kNone && badFace[fi]) bad = true;
     if (!bad) continue;
     const ModelCell& cell = sk.cells[c];
     for (int k = 0; k < cell.numCorners(); ++k)
@@ -992,7 +1165,7 @@ bool keepIllConditionedCells(const Model& m, const Model& sk, const Skeleton& sk
     for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
       if (!keep[ch.vertexBase + v] || sources[i].vertex[v] < 0) continue;
       const IsoVertex& mv = m.vertices[static_cast<std::size_t>(sources[i].vertex[v])];
-      const int axis = skel.vertexAxis[ch.vertexBase + v];
+      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
       ch.exact.push_back(static_cast<std::uint32_t>(v));
       ch.exactT.push_back(mv.position[axis] -
                           static_cast<double>(keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3)[axis]));
@@ -1003,6 +1176,10 @@ bool keepIllConditionedCells(const Model& m, const Model& sk, const Skeleton& sk
 }
 
 void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& out) {
+  // One context for the chunk's streams (ZSTD_compressCCtx codes exactly as ZSTD_compress, without setting
+  // up a context per stream).
+  const std::unique_ptr<ZSTD_CCtx, std::size_t (*)(ZSTD_CCtx*)> context(ZSTD_createCCtx(), ZSTD_freeCCtx);
+  if (!context) throw Error("zstd: cannot create a compression context");
   for (auto& s : ch.streams) {
     putRaw<std::uint32_t>(out, static_cast<std::uint32_t>(s.size()));
     if (s.empty()) {
@@ -1010,7 +1187,7 @@ void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& ou
       continue;
     }
     std::vector<std::uint8_t> z(ZSTD_compressBound(s.size()));
-    const std::size_t n = ZSTD_compress(z.data(), z.size(), s.data(), s.size(), level);
+    const std::size_t n = ZSTD_compressCCtx(context.get(), z.data(), z.size(), s.data(), s.size(), level);
     if (ZSTD_isError(n)) throw Error(std::string("zstd: ") + ZSTD_getErrorName(n));
     if (n >= s.size()) {  // stored as is
       putRaw<std::uint32_t>(out, static_cast<std::uint32_t>(s.size()));
@@ -1077,7 +1254,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   }
   std::vector<ChunkSource> sources(chunks.list.size());
   tbb::parallel_for(std::size_t(0), chunks.list.size(),
-                    [&](std::size_t i) { buildChunkFromModel(m, L, q, chunks.list[i], sources[i], name); });
+                    [&](std::size_t i) { buildChunkFromModel(m, L, chunks.list[i], sources[i], name); });
   std::uint64_t vb = 0, fb = 0;
   for (ChunkTopology& ch : chunks.list) {
     ch.vertexBase = vb;
@@ -1085,14 +1262,20 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
     vb += ch.vertexKey.size();
     fb += ch.faceKey.size();
   }
-  // The reader's skeleton and prediction, to code the normals against.
+  // The model as the reader will have it, to code the normals against its predictions.
   Model sk;
   sk.geometry = m.geometry;
   sk.method = m.method;
-  const Skeleton skel = assemble(chunks, q.positionBits, sk, name);
-  if (sk.cells.size() != m.cells.size())
-    throw Error(name + ": the model cannot be written in format 2: its cells do not follow from its signs");
-  const std::vector<Vec3> pred = predictNormals(sk, skel, startAboveFlags(chunks, sk.vertices.size()));
+  for (ChunkTopology& ch : chunks.list) indexCellRows(ch);
+  std::vector<LoopNeighbours> around;
+  CellFaces cellFaces;
+  fillCells(chunks, sk, around, &cellFaces, &m, name);
+  {
+    const ModelUse use = modelUse(m, sk, cellFaces, fb);
+    tbb::parallel_for(std::size_t(0), chunks.list.size(),
+                      [&](std::size_t i) { codeChunkItems(m, L, q, use, chunks.list[i], sources[i], name); });
+  }
+  placeVertices(chunks, q.positionBits, sk);
   const double nStep = std::ldexp(1.0, -q.normalBits);
   std::uint8_t flags = kSidesStored;
   for (const ModelCell& c : m.cells)
@@ -1101,30 +1284,32 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   for (const IsoVertex& v : m.vertices)
     if (v.weight != 1.0) flags |= kWeightsStored;
   // Normal codes against the prediction, and the normals (and weights) a reader will have.
-  NormalCodes codes(sk.vertices.size(), {0, 0});
-  auto codeNormals = [&](const std::vector<Vec3>& prediction) {
-    tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
-      const ChunkTopology& ch = chunks.list[i];
-      const ChunkSource& src = sources[i];
-      for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-        if (src.vertex[v] < 0) continue;
-        const IsoVertex& mv = m.vertices[static_cast<std::size_t>(src.vertex[v])];
-        normalCode(prediction[ch.vertexBase + v], mv.normal, nStep, skel.vertexAxis[ch.vertexBase + v],
-                   ch.vertexFlags[v], codes[ch.vertexBase + v][0], codes[ch.vertexBase + v][1]);
-        sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
-      }
+  std::vector<std::array<std::int64_t, 2>> codes(sk.vertices.size(), {0, 0});
+  auto codeNormals = [&] {
+    decodeNormals(sk, chunks, around, nStep, [&](std::size_t i) {
+      return [&, i](std::size_t v, const Vec3& pred, std::int64_t& qu, std::int64_t& qv) {
+        const ChunkTopology& ch = chunks.list[i];
+        const std::int64_t mvi = sources[i].vertex[v];
+        std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
+        if (mvi >= 0) {
+          const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
+          normalCode(pred, mv.normal, nStep, static_cast<int>(ch.vertexKey[v] % 3), ch.vertexFlags[v], c[0],
+                     c[1]);
+          sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
+        }
+        qu = c[0];
+        qv = c[1];
+      };
     });
-    applyNormalCodes(sk, chunks, skel, prediction, codes, nStep);
-    applyExactNormals(sk, chunks);
   };
-  codeNormals(pred);
+  codeNormals();
   std::vector<double> sidePrediction =
-      m.method == PatchMethod::Paper ? paperSidePrediction(sk, skel, fb) : std::vector<double>(fb, 0.0);
+      m.method == PatchMethod::Paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
   if (m.method == PatchMethod::Paper &&
-      keepIllConditionedCells(m, sk, skel, chunks, sources, sidePrediction)) {
-    applyExactPositions(sk, chunks, skel);
-    codeNormals(predictNormals(sk, skel, startAboveFlags(chunks, sk.vertices.size())));
-    sidePrediction = paperSidePrediction(sk, skel, fb);
+      keepIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction)) {
+    placeVertices(chunks, q.positionBits, sk);  // now with the full-precision ones
+    codeNormals();
+    sidePrediction = paperSidePrediction(sk, cellFaces, fb);
   }
   std::vector<std::vector<std::uint8_t>> chunkBytes(chunks.list.size());
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
@@ -1201,30 +1386,34 @@ std::string chunkName(const std::string& name, std::size_t i, const DirectoryEnt
 
 void decodeRows(ChunkTopology& ch, StreamReader& in) {
   const Region& r = ch.region;
-  ch.sign.resize(static_cast<std::size_t>(r.n[0] * r.n[1] * r.n[2]));
-  ch.rowUniform.resize(static_cast<std::size_t>(r.n[1] * r.n[2]));
+  ch.sign.assign(static_cast<std::size_t>(r.n[1] * r.n[2]) * ch.words, 0);
   for (std::int64_t row = 0; row < r.n[1] * r.n[2]; ++row) {
     const std::uint64_t code = in.varint();
     const std::uint64_t transitions = code >> 1;
     if (transitions >= static_cast<std::uint64_t>(r.n[0])) in.fail("has a row with too many sign changes");
-    std::uint8_t s = static_cast<std::uint8_t>(code & 1);
-    std::uint8_t* out = &ch.sign[static_cast<std::size_t>(row * r.n[0])];
+    Word* out = &ch.sign[static_cast<std::size_t>(row) * ch.words];
+    // Each run of points above the isovalue sets its bits; changes come in increasing order.
     std::int64_t x = 0;
-    for (std::uint64_t t = 0; t < transitions; ++t) {
-      const std::int64_t at = in.byte();
-      if (at <= x || at >= r.n[0]) in.fail("has sign changes out of order");
-      std::fill(out + x, out + at, s);
+    int s = static_cast<int>(code & 1);
+    for (std::uint64_t t = 0; t <= transitions; ++t) {
+      std::int64_t at = r.n[0];
+      if (t < transitions) {
+        at = in.byte();
+        if (at <= x || at >= r.n[0]) in.fail("has sign changes out of order");
+      }
+      if (s)
+        for (std::size_t w = static_cast<std::size_t>(x >> 6); w <= static_cast<std::size_t>((at - 1) >> 6);
+             ++w)
+          out[w] |= bitRange(w, x, at);
       x = at;
       s ^= 1;
     }
-    std::fill(out + x, out + r.n[0], s);
-    ch.rowUniform[static_cast<std::size_t>(row)] = transitions == 0;
   }
   in.expectEnd();
 }
 
-std::vector<std::uint8_t> decompress(const std::uint8_t*& at, const std::uint8_t* end, std::size_t cap,
-                                     const std::string& where) {
+std::vector<std::uint8_t> decompress(ZSTD_DCtx* context, const std::uint8_t*& at, const std::uint8_t* end,
+                                     std::size_t cap, const std::string& where) {
   if (end - at < 8) throw Error(where + " is truncated");
   std::uint32_t raw, stored;
   std::memcpy(&raw, at, 4);
@@ -1243,7 +1432,7 @@ std::vector<std::uint8_t> decompress(const std::uint8_t*& at, const std::uint8_t
     at += stored;
     return out;
   }
-  const std::size_t n = ZSTD_decompress(out.data(), raw, at, stored);
+  const std::size_t n = ZSTD_decompressDCtx(context, out.data(), raw, at, stored);
   if (ZSTD_isError(n) || n != raw) throw Error(where + " does not decompress to its declared size");
   at += stored;
   return out;
@@ -1326,6 +1515,29 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
   return h;
 }
 
+/// A chunk's side coefficients (per owned face; the paper method's residuals against its rule) and central
+/// coefficients (per cell).
+void readCoefficients(ChunkTopology& ch, const FileHeader& h, const std::string& where) {
+  StreamReader sr(&ch.streams[kSides], where + ": side coefficients");
+  StreamReader cr(&ch.streams[kCentrals], where + ": central coefficients");
+  if (h.flags & kSidesStored) {
+    ch.side.resize(ch.faceKey.size());
+    for (double& w : ch.side) {
+      w = coefficientValue(sr.svarint(), h.q.sideStep, h.q.sideMantissa);
+      if (!std::isfinite(w)) sr.fail("has a side coefficient out of range");
+    }
+  }
+  if (h.flags & kCentralsStored) {
+    ch.central.resize(ch.cells.size());
+    for (double& w : ch.central) {
+      w = coefficientValue(cr.svarint(), h.q.centralStep, h.q.centralMantissa);
+      if (!std::isfinite(w)) cr.fail("has a central coefficient out of range");
+    }
+  }
+  sr.expectEnd();
+  cr.expectEnd();
+}
+
 /// Phase 1 of reading a chunk, independent of all others: checksum, streams, signs, cells, owned vertices and
 /// faces.
 void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, std::size_t i,
@@ -1351,13 +1563,16 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
                                         V,
                                         10 + 42 * V};
   ch.streams.resize(kNumStreams);
+  const std::unique_ptr<ZSTD_DCtx, std::size_t (*)(ZSTD_DCtx*)> context(ZSTD_createDCtx(), ZSTD_freeDCtx);
+  if (!context) throw Error(where + ": cannot create a zstd context");
   for (int s = 0; s < kNumStreams; ++s)
-    ch.streams[s] = decompress(at, end, cap[s], where + ", stream " + std::to_string(s) + ",");
+    ch.streams[s] = decompress(context.get(), at, end, cap[s], where + ", stream " + std::to_string(s) + ",");
   if (at != end) throw Error(where + ": bytes after its last stream");
   StreamReader rows(&ch.streams[kRows], where + ": sign rows");
   decodeRows(ch, rows);
   std::vector<std::uint32_t> nontrivial;
-  cellsFromSigns(L, ch, nontrivial);
+  std::vector<std::uint8_t> configs;
+  cellsFromSigns(ch, nontrivial, configs);
   StreamReader ex(&ch.streams[kExceptions], where + ": cell exceptions");
   const std::uint64_t nEx = ex.varint();
   if (nEx > nontrivial.size()) ex.fail("lists more cells than are crossed");
@@ -1366,23 +1581,31 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
   for (auto& x : skip) {
     next += ex.varint();
     if (next >= static_cast<std::uint64_t>(L.B * L.B * L.B)) ex.fail("lists a cell outside the brick");
-    x = static_cast<std::uint32_t>(next++);
+    x = packCell(static_cast<std::int64_t>(next) % L.B, static_cast<std::int64_t>(next) / L.B % L.B,
+                 static_cast<std::int64_t>(next) / (L.B * L.B));
+    ++next;
   }
   ex.expectEnd();
-  std::size_t k = 0;
-  for (std::uint32_t local : nontrivial) {
-    while (k < skip.size() && skip[k] < local) ++k;
-    if (k < skip.size() && skip[k] == local) continue;
-    ch.cells.push_back(local);
-    ch.config.push_back(cellConfig(ch, {ch.origin[0] + local % L.B, ch.origin[1] + (local / L.B) % L.B,
-                                        ch.origin[2] + local / (L.B * L.B)}));
+  if (skip.empty()) {
+    ch.cells = std::move(nontrivial);
+    ch.config = std::move(configs);
+  } else {
+    std::size_t k = 0;
+    for (std::size_t j = 0; j < nontrivial.size(); ++j) {
+      while (k < skip.size() && skip[k] < nontrivial[j]) ++k;
+      if (k < skip.size() && skip[k] == nontrivial[j]) continue;
+      ch.cells.push_back(nontrivial[j]);
+      ch.config.push_back(configs[j]);
+    }
   }
   if (ch.cells.size() != e.cells)
     throw Error(where + ": its signs give " + std::to_string(ch.cells.size()) +
                 " cells, the directory says " + std::to_string(e.cells));
   ownedItems(L, ch);
+  ch.sign = {};
   if (ch.vertexKey.size() != e.vertices || ch.faceKey.size() != e.faces)
     throw Error(where + ": its signs do not give the directory's vertex and face counts");
+  indexCellRows(ch);
   StreamReader lo(&ch.streams[kPositionsLo], where + ": positions");
   StreamReader hi(&ch.streams[kPositionsHi], where + ": positions");
   const std::uint16_t tMax = maxTCode(h.q.positionBits);
@@ -1407,8 +1630,7 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
   StreamReader pr(&ch.streams[kPairings], where + ": face pairings");
   ch.facePairing.assign(ch.faceKey.size(), 0);
   for (std::size_t f = 0; f < ch.faceKey.size(); ++f) {
-    if (!ambiguousFace(ch, keyPoint(ch, L.B, ch.faceKey[f] / 3), static_cast<int>(ch.faceKey[f] % 3)))
-      continue;
+    if (!ch.faceAmbiguous[f]) continue;
     const std::uint8_t b = pr.byte();
     if (b > 1) pr.fail("has a pairing that is not 0 or 1");
     ch.facePairing[f] = b;
@@ -1431,78 +1653,41 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
     ch.exactNormal.push_back(n);
   }
   xr.expectEnd();
-  ch.sign = {};
-  ch.rowUniform = {};
+  readCoefficients(ch, h, where);
 }
 
-/// Normal codes (and corner coefficients, when stored) of every chunk, in file order.
-NormalCodes readNormalCodes(const Chunks& chunks, const FileHeader& h, Model& m, const std::string& name) {
-  NormalCodes codes(m.vertices.size());
-  const std::int64_t limit = (std::int64_t(1) << h.q.normalBits) + 1;
-  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
-    const ChunkTopology& ch = chunks.list[i];
-    const std::string where = chunkName(name, i, h.dir[i], chunks.L.B);
-    StreamReader nr(&ch.streams[kNormals], where + ": normals");
-    StreamReader wr(&ch.streams[kWeights], where + ": corner coefficients");
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      auto& c = codes[ch.vertexBase + v];
-      c[0] = nr.svarint();
-      c[1] = nr.svarint();
-      if (std::abs(c[0]) > limit || std::abs(c[1]) > limit) nr.fail("has a normal code out of range");
-      if (h.flags & kWeightsStored) {
-        double& w = m.vertices[ch.vertexBase + v].weight;
-        w = wr.f64();
-        if (!std::isfinite(w)) wr.fail("has a non-finite corner coefficient");
-      }
+/// A chunk's weights and normal codes, read in step with decodeNormals (one call per vertex, in order).
+class NormalCodeReader {
+ public:
+  NormalCodeReader(const ChunkTopology& ch, const FileHeader& h, Model& m, const std::string& where)
+      : ch_(ch),
+        m_(m),
+        weights_((h.flags & kWeightsStored) != 0),
+        limit_((std::int64_t(1) << h.q.normalBits) + 1),
+        normals_(&ch.streams[kNormals], where + ": normals"),
+        corner_(&ch.streams[kWeights], where + ": corner coefficients") {}
+  void operator()(std::size_t v, const Vec3&, std::int64_t& qu, std::int64_t& qv) {
+    qu = normals_.svarint();
+    qv = normals_.svarint();
+    if (std::abs(qu) > limit_ || std::abs(qv) > limit_) normals_.fail("has a normal code out of range");
+    if (weights_) {
+      double& w = m_.vertices[ch_.vertexBase + v].weight;
+      w = corner_.f64();
+      if (!std::isfinite(w)) corner_.fail("has a non-finite corner coefficient");
     }
-    nr.expectEnd();
-    wr.expectEnd();
-  });
-  return codes;
-}
+    if (v + 1 == ch_.vertexKey.size()) {
+      normals_.expectEnd();
+      corner_.expectEnd();
+    }
+  }
 
-/// Side coefficients (prediction + stored residual, per face) and central coefficients (per cell).
-void readCoefficients(const Chunks& chunks, const FileHeader& h, const Skeleton& sk, Model& m,
-                      const std::string& name) {
-  std::size_t faces = 0;
-  for (const ChunkTopology& ch : chunks.list) faces += ch.faceKey.size();
-  std::vector<double> side =
-      m.method == PatchMethod::Paper ? paperSidePrediction(m, sk, faces) : std::vector<double>(faces, 0.0);
-  std::vector<std::uint64_t> cellBase(chunks.list.size() + 1, 0);
-  for (std::size_t i = 0; i < chunks.list.size(); ++i)
-    cellBase[i + 1] = cellBase[i] + chunks.list[i].cells.size();
-  std::vector<double> central(cellBase.back(), 0.0);
-  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
-    const ChunkTopology& ch = chunks.list[i];
-    const std::string where = chunkName(name, i, h.dir[i], chunks.L.B);
-    StreamReader sr(&ch.streams[kSides], where + ": side coefficients");
-    StreamReader cr(&ch.streams[kCentrals], where + ": central coefficients");
-    if (h.flags & kSidesStored)
-      for (std::size_t f = 0; f < ch.faceKey.size(); ++f) {
-        side[ch.faceBase + f] += coefficientValue(sr.svarint(), h.q.sideStep, h.q.sideMantissa);
-        if (!std::isfinite(side[ch.faceBase + f])) sr.fail("has a side coefficient out of range");
-      }
-    if (h.flags & kCentralsStored)
-      for (std::size_t c = 0; c < ch.cells.size(); ++c) {
-        central[cellBase[i] + c] = coefficientValue(cr.svarint(), h.q.centralStep, h.q.centralMantissa);
-        if (!std::isfinite(central[cellBase[i] + c])) cr.fail("has a central coefficient out of range");
-      }
-    sr.expectEnd();
-    cr.expectEnd();
-  });
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, m.cells.size()),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t c = r.begin(); c < r.end(); ++c) {
-                        ModelCell& cell = m.cells[c];
-                        cell.central = central[cellBase[sk.origin[c].chunk] + sk.origin[c].local];
-                        for (int f = 0; f < 6; ++f) {
-                          const std::int64_t fi = sk.face[c][static_cast<std::size_t>(f)];
-                          cell.faceCoefficient[static_cast<std::size_t>(f)] =
-                              fi >= 0 ? side[static_cast<std::size_t>(fi)] : 0.0;
-                        }
-                      }
-                    });
-}
+ private:
+  const ChunkTopology& ch_;
+  Model& m_;
+  bool weights_;
+  std::int64_t limit_;
+  StreamReader normals_, corner_;
+};
 
 /// Drops vertices no cell uses (crossings next to cells the model leaves out).
 void dropUnusedVertices(Model& m) {
@@ -1576,14 +1761,33 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   }
   tbb::parallel_for(std::size_t(0), n,
                     [&](std::size_t i) { readChunk(data, chunks.L, h, i, chunks.list[i], name); });
-  const Skeleton sk = assemble(chunks, h.q.positionBits, m, name);
-  applyExactPositions(m, chunks, sk);
-  const std::vector<Vec3> pred = predictNormals(m, sk, startAboveFlags(chunks, m.vertices.size()));
-  const NormalCodes codes = readNormalCodes(chunks, h, m, name);
-  applyNormalCodes(m, chunks, sk, pred, codes, std::ldexp(1.0, -h.q.normalBits));
-  applyExactNormals(m, chunks);
-  readCoefficients(chunks, h, sk, m, name);
-  dropUnusedVertices(m);
+  const bool paper = m.method == PatchMethod::Paper;
+  std::vector<LoopNeighbours> around;
+  CellFaces cellFaces;
+  fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, name);
+  placeVertices(chunks, h.q.positionBits, m);
+  decodeNormals(m, chunks, around, std::ldexp(1.0, -h.q.normalBits), [&](std::size_t i) {
+    return NormalCodeReader(chunks.list[i], h, m, chunkName(name, i, h.dir[i], chunks.L.B));
+  });
+  if (paper) {  // the side coefficients read so far are residuals against the paper's rule
+    const std::vector<double> rule = paperSidePrediction(m, cellFaces, faces);
+    tbb::parallel_for(std::size_t(0), m.cells.size(), [&](std::size_t c) {
+      for (int f = 0; f < 6; ++f) {
+        const std::uint32_t fi = cellFaces[c][static_cast<std::size_t>(f)];
+        if (fi == kNone) continue;
+        double& w = m.cells[c].faceCoefficient[static_cast<std::size_t>(f)];
+        w = rule[fi] + w;
+        if (!std::isfinite(w))
+          throw Error(name + ": damaged model file: a side coefficient of cell " + std::to_string(c) +
+                      " is out of range");
+      }
+    });
+  }
+  // Vertices no cell uses (crossings next to cells the model leaves out) are dropped.
+  if (std::any_of(around.begin(), around.end(), [](const LoopNeighbours& a) {
+        return a.v[0] == kNone && a.v[2] == kNone && a.v[4] == kNone && a.v[6] == kNone;
+      }))
+    dropUnusedVertices(m);
   return m;
 }
 
