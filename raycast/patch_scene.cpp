@@ -1,10 +1,13 @@
 #include "patch_scene.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <cmath>
 #include <tuple>
 
+#include "cip/patch/patch_bounds.h"
 #include "cip/patch/ray_patch.h"
 
 namespace cip::raycast {
@@ -38,8 +41,16 @@ void patchBounds(const RTCBoundsFunctionArguments* args) {
   const auto* scene = static_cast<const PatchScene*>(args->geometryUserPtr);
   const Model& m = scene->model();
   const Vec3 cell = m.cellOrigin(args->primID);
-  const Vec3 lo = m.geometry.indexToWorld(cell - Vec3::Constant(kBoundsPad));
-  const Vec3 hi = m.geometry.indexToWorld(cell + Vec3::Constant(1 + kBoundsPad));
+  Vec3 boxLo = Vec3::Zero(), boxHi = Vec3::Ones();
+  if (!zeroMaskBox(scene->zeroMask(args->primID), boxLo, boxHi)) {
+    // No zero anywhere in the cell (cellRoot rejects every ray): an empty box, which Embree leaves out.
+    RTCBounds* b = args->bounds_o;
+    b->lower_x = b->lower_y = b->lower_z = 1.0f;
+    b->upper_x = b->upper_y = b->upper_z = -1.0f;
+    return;
+  }
+  const Vec3 lo = m.geometry.indexToWorld(cell + boxLo - Vec3::Constant(kBoundsPad));
+  const Vec3 hi = m.geometry.indexToWorld(cell + boxHi + Vec3::Constant(kBoundsPad));
   RTCBounds* b = args->bounds_o;
   b->lower_x = roundDownToFloat(lo.x() - 1e-6 * std::abs(lo.x()));
   b->lower_y = roundDownToFloat(lo.y() - 1e-6 * std::abs(lo.y()));
@@ -59,12 +70,16 @@ std::optional<Root> cellRoot(const PatchRayContext& ctx, std::uint32_t cell) {
   const Vec3 origin = s.frameToLocal(ctx.ray.origin, cell);
   const Vec3 direction =
       ctx.ray.direction.cwiseQuotient(s.model().geometry.spacing);  // same t as the world ray
-  double t0 = 0, t1 = 0;
+  double t0 = 0, t1 = 0, s0 = 0, s1 = 0;
   if (!clipRayToCell(origin, direction, ctx.tNear, ctx.tFar, t0, t1) || (ctx.found && t0 > ctx.bestT))
+    return std::nullopt;
+  // Only the stretch from the first to the last sub-box where the patch may vanish can hold a root.
+  if (!clipRayToZeroMask(origin, direction, t0, t1, s.zeroMask(cell), s0, s1) ||
+      (ctx.found && s0 > ctx.bestT))
     return std::nullopt;
   RootSearchOptions options;
   options.crossingsOnly = true;  // the surface separates value > isovalue from value < isovalue
-  return intersectRayPatch(s.patch(cell), origin, direction, ctx.tNear, ctx.tFar, options);
+  return intersectRayPatch(s.patch(cell), origin, direction, s0, s1, options);
 }
 
 void patchIntersect(const RTCIntersectFunctionNArguments* args) {
@@ -122,7 +137,12 @@ PatchScene::PatchScene(const Model& model, const PatchSceneOptions& options)
 void PatchScene::build() {
   const Model& model = model_;
   std::tie(bounds_.lo, bounds_.hi) = worldBounds(model, world_);
-
+  zeroMasks_.resize(model.cells.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, model.cells.size(), 256),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t c = r.begin(); c < r.end(); ++c)
+                        zeroMasks_[c] = patchZeroMask(model.patch(c));
+                    });
   scene_ = rtcNewScene(device_.get());
   rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);

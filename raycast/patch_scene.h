@@ -42,6 +42,8 @@ class PatchScene : public RenderScene {
   /// The cell's patch, assembled from the model when asked for (a copy of the corners; cheaper than faulting
   /// in a table of ~0.8 KB per cell, which was 7 % of a 1024x1024 render's whole process).
   CornerPatch patch(std::uint32_t cell) const { return model_.patch(cell); }
+  /// The cell's sub-boxes where its patch may vanish (patch_bounds.h).
+  std::uint64_t zeroMask(std::uint32_t cell) const { return zeroMasks_[cell]; }
   /// Cell-local coordinates of a world point in cell `cell`.
   Vec3 worldToLocal(const Vec3& world, std::uint32_t cell) const;
   /// Cell-local coordinates of a point of the model's grid frame in cell `cell`.
@@ -64,6 +66,7 @@ class PatchScene : public RenderScene {
   Mat3 gradientToWorld_;  ///< cell-local gradient -> world gradient (world_.indexGradientToWorld)
   bool curvature_ = true;
   Box bounds_;
+  std::vector<std::uint64_t> zeroMasks_;  ///< per cell, patchZeroMask of its patch
   EmbreeDevice device_;
   RTCScene scene_ = nullptr;
 };
