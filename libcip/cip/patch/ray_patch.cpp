@@ -48,15 +48,16 @@ int signChanges(const Coefficients& b, int n) {
 }
 
 /// The single root of p in [lo, hi], where p(lo) and p(hi) are non-zero with opposite signs: Newton steps
-/// kept inside the shrinking bracket, bisection whenever a step would leave it or converge slower than
-/// bisection. Stops when |p(x)| is within p's rounding bound at x (its sign there is noise, so further steps
-/// would only wander within the noise; one last Newton step is taken when it stays inside the bracket), when
-/// the bracket or the step is below `tolerance`, or after maxIterations.
+/// from `start` (the midpoint when it is not inside the bracket) kept inside the shrinking bracket, bisection
+/// whenever a step would leave it or converge slower than bisection. Stops when |p(x)| is within p's rounding
+/// bound at x (its sign there is noise, so further steps would only wander within the noise; one last Newton
+/// step is taken when it stays inside the bracket), when the bracket or the step is below `tolerance`, or
+/// after maxIterations.
 double refineBracketed(const RayPolynomial& p, double lo, double hi, double valueLo, double tolerance,
-                       int maxIterations) {
+                       int maxIterations, double start) {
   // Orient so that g = s * p is negative at lo and positive at hi.
   const double s = valueLo < 0 ? 1.0 : -1.0;
-  double x = 0.5 * (lo + hi);
+  double x = start > lo && start < hi ? start : 0.5 * (lo + hi);
   double dxOld = hi - lo, dx = dxOld;
   double g = 0, dg = 0, bound = 0;
   p.valueDerivativeAndBound(x, g, dg, bound);
@@ -96,38 +97,76 @@ double refineBracketed(const RayPolynomial& p, double lo, double hi, double valu
   return std::clamp(x, lo, hi);
 }
 
+/// The root in (0, 1) of the polynomial with Bernstein coefficients b[0..n] on [0, 1], whose ends b[0] and
+/// b[n] are non-zero with opposite signs and whose coefficients change sign once: safeguarded Newton steps on
+/// the Bernstein form itself (each evaluation O(n), against O(terms x degree) for the factored form), started
+/// where the control polygon crosses zero, until the step is below a few ulps or the value is within the
+/// evaluation's rounding. The result is within rounding of the coefficients of the root; refineBracketed then
+/// confirms it on the factored form, usually with one evaluation.
+double bernsteinRoot(const Coefficients& b, int n) {
+  // Scaled coefficients: p(u) = (1-u)^n sum c_i s^i with s = u / (1-u) (for u <= 1/2; mirrored above), and
+  // p'(u) = (1-u)^(n-1) sum e_i s^i.
+  Coefficients c, e;
+  double binomial = 1, binomialLower = 1;  // C(n, i), C(n-1, i)
+  for (int i = 0; i <= n; ++i) {
+    c[i] = binomial * b[i];
+    if (i < n) e[i] = n * binomialLower * (b[i + 1] - b[i]);
+    binomial = binomial * (n - i) / (i + 1);
+    binomialLower = binomialLower * (n - 1 - i) / (i + 1);
+  }
+  auto evaluate = [&](double u, double& value, double& derivative, double& noise) {
+    const bool low = u <= 0.5;
+    const double w = low ? 1.0 - u : u, s = (low ? u : 1.0 - u) / w;
+    double v = 0, d = 0, m = 0;
+    if (low) {
+      for (int i = n; i >= 0; --i) {
+        v = v * s + c[i];
+        m = m * s + std::abs(c[i]);
+      }
+      for (int i = n - 1; i >= 0; --i) d = d * s + e[i];
+    } else {
+      for (int i = 0; i <= n; ++i) {
+        v = v * s + c[i];
+        m = m * s + std::abs(c[i]);
+      }
+      for (int i = 0; i < n; ++i) d = d * s + e[i];
+    }
+    double wn1 = 1;
+    for (int i = 1; i < n; ++i) wn1 *= w;
+    value = v * wn1 * w;
+    derivative = d * wn1;
+    noise = 4 * (n + 2) * kEps * m * wn1 * w;
+  };
+  // Orient so that g = sign * p is negative at 0 and positive at 1.
+  const double sign = b[0] < 0 ? 1.0 : -1.0;
+  // Start where the control polygon crosses zero.
+  int k = 0, j = 1;
+  while (j < n && !(b[j] != 0 && (b[j] < 0) != (b[0] < 0))) {
+    if (b[j] != 0) k = j;
+    ++j;
+  }
+  double u = (k + (j - k) * (b[k] / (b[k] - b[j]))) / n;
+  double lo = 0, hi = 1;
+  if (!(u > lo && u < hi)) u = 0.5;
+  for (int it = 0; it < 60; ++it) {
+    double g, dg, noise;
+    evaluate(u, g, dg, noise);
+    g *= sign;
+    dg *= sign;
+    if (g == 0) return u;
+    (g < 0 ? lo : hi) = u;
+    double next = dg != 0 ? u - g / dg : 0.5 * (lo + hi);
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    if (std::abs(g) <= noise || std::abs(next - u) <= 4 * kEps || hi - lo <= 4 * kEps) return next;
+    u = next;
+  }
+  return u;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------------------------
 // RayPolynomial
-
-int RayPolynomial::addFactor(const LinearFactor& factor) {
-  if (numFactors_ >= kMaxFactors) throw std::length_error("RayPolynomial: too many factors");
-  factors_[numFactors_] = factor;
-  return numFactors_++;
-}
-
-int RayPolynomial::addTerm(double coefficient) {
-  if (numTerms_ >= kMaxTerms) throw std::length_error("RayPolynomial: too many terms");
-  Term& term = terms_[numTerms_];
-  term.coefficient = coefficient;
-  term.count = 0;
-  term.degree = 0;
-  return numTerms_++;
-}
-
-void RayPolynomial::multiplyTerm(int term, int factor, int power) {
-  if (term < 0 || term >= numTerms_ || factor < 0 || factor >= numFactors_ || power < 1)
-    throw std::length_error("RayPolynomial: bad term, factor or power");
-  Term& t = terms_[term];
-  if (t.count >= kMaxTermFactors || t.degree + power > kMaxDegree)
-    throw std::length_error("RayPolynomial: term degree too high");
-  t.factor[t.count] = static_cast<std::uint8_t>(factor);
-  t.power[t.count] = static_cast<std::uint8_t>(power);
-  ++t.count;
-  t.degree += power;
-  degree_ = std::max(degree_, t.degree);
-}
 
 double RayPolynomial::value(double t) const {
   std::array<double, kMaxFactors> l;
@@ -220,6 +259,60 @@ void RayPolynomial::valueDerivativeAndBound(double t, double& value, double& der
   bound = 4.0 * (spread + (degree_ + numTerms_ + 2) * kEps * size);
 }
 
+bool RayPolynomial::excludesZero(double a, double b) const {
+  // Each factor's range on [a, b], and the range of its square.
+  std::array<double, kMaxFactors> lo, hi, sqLo, sqHi;
+  for (int f = 0; f < numFactors_; ++f) {
+    const double va = factors_[f](a), vb = factors_[f](b);
+    lo[f] = std::min(va, vb);
+    hi[f] = std::max(va, vb);
+    sqHi[f] = std::max(va * va, vb * vb);
+    sqLo[f] = lo[f] >= 0 ? lo[f] * lo[f] : (hi[f] <= 0 ? hi[f] * hi[f] : 0.0);
+  }
+  double sumLo = 0, sumHi = 0, size = 0;
+  for (int i = 0; i < numTerms_; ++i) {
+    const Term& term = terms_[i];
+    // The term's range as [sl, sh] x [ql, qh]: the non-negative powers (squares, factors without a negative
+    // value) multiplied into [ql, qh], every other one into the signed [sl, sh].
+    double sl = term.coefficient, sh = term.coefficient, ql = 1, qh = 1;
+    for (int j = 0; j < term.count; ++j) {
+      const int f = term.factor[j], power = term.power[j];
+      if (power == 2) {
+        ql *= sqLo[f];
+        qh *= sqHi[f];
+        continue;
+      }
+      if (power == 1 && lo[f] >= 0) {
+        ql *= lo[f];
+        qh *= hi[f];
+        continue;
+      }
+      // The range of factor^power: monotone for odd powers, through zero for even powers of a factor that
+      // changes sign.
+      double gl = lo[f], gh = hi[f];
+      if (power % 2 == 0 && gl < 0) {
+        const double m = std::max(-gl, std::abs(gh));
+        gl = gh <= 0 ? -gh : 0.0;
+        gh = m;
+      }
+      double pl = gl, ph = gh;
+      for (int k = 1; k < power; ++k) {
+        pl *= gl;
+        ph *= gh;
+      }
+      const double p0 = sl * pl, p1 = sl * ph, p2 = sh * pl, p3 = sh * ph;
+      sl = std::min(std::min(p0, p1), std::min(p2, p3));
+      sh = std::max(std::max(p0, p1), std::max(p2, p3));
+    }
+    const double tl = sl >= 0 ? sl * ql : sl * qh, th = sh >= 0 ? sh * qh : sh * ql;
+    sumLo += tl;
+    sumHi += th;
+    size += std::max(-tl, th);
+  }
+  const double margin = 1e-12 * size;
+  return size > 0 && (sumLo > margin || sumHi < -margin);
+}
+
 int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const {
   const int n = degree_;
   std::array<double, kMaxFactors> la, lb;
@@ -294,6 +387,8 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
   std::array<std::pair<double, double>, kStack> stack;
   int top = 0;
   stack[top++] = {t0, t1};
+  // Most cells a ray crosses without a root are decided by a cheap interval bound.
+  if (p.excludesZero(t0, t1)) return std::nullopt;
   Coefficients b;
   int examined = 0;
   while (top > 0) {
@@ -312,7 +407,8 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
     }
     if (changes == 1 && b[n] != 0) {
       ++st.refinements;
-      return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations),
+      const double start = lo + bernsteinRoot(b, n) * (hi - lo);
+      return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations, start),
                   RootKind::Bracketed};
     }
     const double mid = lo + 0.5 * (hi - lo);
@@ -320,7 +416,7 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
       // Depth limit: the roots here cannot be separated in double precision.
       if (sign(b[0]) * sign(b[n]) < 0) {  // odd count: a root exists by the intermediate value theorem
         ++st.refinements;
-        return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations),
+        return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations, mid),
                     RootKind::Bracketed};
       }
       if (b[n] == 0) return Root{hi, RootKind::EndPoint};
