@@ -14,22 +14,15 @@ namespace {
 constexpr double kEps = std::numeric_limits<double>::epsilon();
 using Coefficients = std::array<double, RayPolynomial::kMaxDegree + 1>;
 
-/// In place: b (degree m, Bernstein on [a,b]) times the linear function with end values (l0, l1); result
-/// degree m+1. c_k = (l0 b_k (m+1-k) + l1 b_{k-1} k) / (m+1); the end coefficients are plain products so that
-/// they equal the factored evaluation at the interval ends bit for bit.
-void multiplyLinear(Coefficients& b, int m, double l0, double l1) {
-  const double inv = 1.0 / (m + 1);
-  b[m + 1] = l1 * b[m];
-  for (int k = m; k >= 1; --k) b[k] = (l0 * b[k] * (m + 1 - k) + l1 * b[k - 1] * k) * inv;
-  b[0] = l0 * b[0];
-}
-
-/// In place: degree elevation from m to m+1 (multiplication by the constant 1, end values (1, 1)).
-void elevate(Coefficients& b, int m) {
-  const double inv = 1.0 / (m + 1);
-  b[m + 1] = b[m];
-  for (int k = m; k >= 1; --k) b[k] = (b[k] * (m + 1 - k) + b[k - 1] * k) * inv;
-}
+/// Binomial coefficients C(n, k), n <= kMaxDegree (exact in double).
+constexpr auto kBinomial = [] {
+  std::array<std::array<double, RayPolynomial::kMaxDegree + 1>, RayPolynomial::kMaxDegree + 1> t{};
+  for (int n = 0; n <= RayPolynomial::kMaxDegree; ++n) {
+    t[n][0] = 1;
+    for (int k = 1; k <= n; ++k) t[n][k] = t[n - 1][k - 1] + (k < n ? t[n - 1][k] : 0.0);
+  }
+  return t;
+}();
 
 int sign(double x) {
   return (x > 0) - (x < 0);
@@ -97,23 +90,17 @@ double refineBracketed(const RayPolynomial& p, double lo, double hi, double valu
   return std::clamp(x, lo, hi);
 }
 
-/// The root in (0, 1) of the polynomial with Bernstein coefficients b[0..n] on [0, 1], whose ends b[0] and
-/// b[n] are non-zero with opposite signs and whose coefficients change sign once: safeguarded Newton steps on
-/// the Bernstein form itself (each evaluation O(n), against O(terms x degree) for the factored form), started
-/// where the control polygon crosses zero, until the step is below a few ulps or the value is within the
-/// evaluation's rounding. The result is within rounding of the coefficients of the root; refineBracketed then
-/// confirms it on the factored form, usually with one evaluation.
-double bernsteinRoot(const Coefficients& b, int n) {
-  // Scaled coefficients: p(u) = (1-u)^n sum c_i s^i with s = u / (1-u) (for u <= 1/2; mirrored above), and
-  // p'(u) = (1-u)^(n-1) sum e_i s^i.
-  Coefficients c, e;
-  double binomial = 1, binomialLower = 1;  // C(n, i), C(n-1, i)
-  for (int i = 0; i <= n; ++i) {
-    c[i] = binomial * b[i];
-    if (i < n) e[i] = n * binomialLower * (b[i + 1] - b[i]);
-    binomial = binomial * (n - i) / (i + 1);
-    binomialLower = binomialLower * (n - 1 - i) / (i + 1);
-  }
+/// The root in (0, 1) of the polynomial with scaled Bernstein coefficients c[0..n] on [0, 1] (c_k = C(n, k)
+/// b_k, RayPolynomial::scaledBernstein), whose ends are non-zero with opposite signs and which change sign
+/// once: safeguarded Newton steps on the Bernstein form itself (each evaluation O(n), against O(terms x
+/// degree) for the factored form), started where the control polygon crosses zero, until the step is below a
+/// few ulps or the value is within the evaluation's rounding. The result is within rounding of the
+/// coefficients of the root; refineBracketed then confirms it on the factored form.
+double bernsteinRoot(const Coefficients& c, int n) {
+  // p(u) = (1-u)^n sum c_i s^i with s = u / (1-u) (for u <= 1/2; mirrored above), and
+  // p'(u) = (1-u)^(n-1) sum e_i s^i with e_i = (i+1) c_{i+1} - (n-i) c_i.
+  Coefficients e;
+  for (int i = 0; i < n; ++i) e[i] = (i + 1) * c[i + 1] - (n - i) * c[i];
   auto evaluate = [&](double u, double& value, double& derivative, double& noise) {
     const bool low = u <= 0.5;
     const double w = low ? 1.0 - u : u, s = (low ? u : 1.0 - u) / w;
@@ -138,14 +125,15 @@ double bernsteinRoot(const Coefficients& b, int n) {
     noise = 4 * (n + 2) * kEps * m * wn1 * w;
   };
   // Orient so that g = sign * p is negative at 0 and positive at 1.
-  const double sign = b[0] < 0 ? 1.0 : -1.0;
-  // Start where the control polygon crosses zero.
+  const double sign = c[0] < 0 ? 1.0 : -1.0;
+  // Start where the control polygon (k / n, b_k) crosses zero.
   int k = 0, j = 1;
-  while (j < n && !(b[j] != 0 && (b[j] < 0) != (b[0] < 0))) {
-    if (b[j] != 0) k = j;
+  while (j < n && !(c[j] != 0 && (c[j] < 0) != (c[0] < 0))) {
+    if (c[j] != 0) k = j;
     ++j;
   }
-  double u = (k + (j - k) * (b[k] / (b[k] - b[j]))) / n;
+  const double bk = c[k] / kBinomial[n][k], bj = c[j] / kBinomial[n][j];
+  double u = (k + (j - k) * (bk / (bk - bj))) / n;
   double lo = 0, hi = 1;
   if (!(u > lo && u < hi)) u = 0.5;
   for (int it = 0; it < 60; ++it) {
@@ -313,15 +301,18 @@ bool RayPolynomial::excludesZero(double a, double b) const {
   return size > 0 && (sumLo > margin || sumHi < -margin);
 }
 
-int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const {
+int RayPolynomial::scaledBernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const {
   const int n = degree_;
   std::array<double, kMaxFactors> la, lb;
   for (int f = 0; f < numFactors_; ++f) {
     la[f] = factors_[f](a);
     lb[f] = factors_[f](b);
   }
-  // The sum of the terms of degree <= m, elevated to degree m, is kept in `out`; each degree step elevates it
-  // once. The end coefficients are summed apart, in term order, so that they equal value(a) and value(b).
+  // In the scaled basis u^k (1-u)^(m-k) a product by a linear factor with end values (l0, l1) is
+  // c_k <- l0 c_k + l1 c_{k-1}, and a degree elevation c_k <- c_k + c_{k-1}: two products and a sum per
+  // coefficient, no weights. The sum of the terms of degree <= m, elevated to degree m, is kept in `out`;
+  // each degree step elevates it once. The end coefficients (the same in both bases) are plain products,
+  // summed apart in term order, so that they equal value(a) and value(b) bit for bit.
   std::array<double, kMaxTerms> ends0, ends1;
   int m = n;
   for (int i = 0; i < numTerms_; ++i) m = std::min(m, terms_[i].degree);
@@ -338,21 +329,28 @@ int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree +
         continue;
       }
       // All factors but the last into c; the last one's product goes straight into `out` (storing it in c and
-      // reading it back stalled on store forwarding), with the same operations as multiplyLinear.
+      // reading it back stalled on store forwarding).
       int k = 0;
-      for (int j = 0; j < term.count; ++j)
-        for (int p = j + 1 < term.count ? 0 : 1; p < term.power[j]; ++p)
-          multiplyLinear(c, k++, la[term.factor[j]], lb[term.factor[j]]);
+      for (int j = 0; j < term.count; ++j) {
+        const double l0 = la[term.factor[j]], l1 = lb[term.factor[j]];
+        for (int p = j + 1 < term.count ? 0 : 1; p < term.power[j]; ++p) {
+          c[k + 1] = l1 * c[k];
+          for (int q = k; q >= 1; --q) c[q] = l0 * c[q] + l1 * c[q - 1];
+          c[0] = l0 * c[0];
+          ++k;
+        }
+      }
       const int last = term.factor[term.count - 1];
-      const double l0 = la[last], l1 = lb[last], inv = 1.0 / m;
+      const double l0 = la[last], l1 = lb[last];
       ends0[i] = l0 * c[0];
       ends1[i] = l1 * c[k];
       out[m] += ends1[i];
-      for (int q = k; q >= 1; --q) out[q] += (l0 * c[q] * (m - q) + l1 * c[q - 1] * q) * inv;
+      for (int q = k; q >= 1; --q) out[q] += l0 * c[q] + l1 * c[q - 1];
       out[0] += ends0[i];
     }
     if (m >= n) break;
-    elevate(out, m);
+    out[m + 1] = out[m];
+    for (int k = m; k >= 1; --k) out[k] += out[k - 1];
   }
   double end0 = 0, end1 = 0;
   for (int i = 0; i < numTerms_; ++i) {
@@ -361,6 +359,12 @@ int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree +
   }
   out[0] = end0;
   out[n] = end1;
+  return n;
+}
+
+int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const {
+  const int n = scaledBernstein(a, b, out);
+  for (int k = 1; k < n; ++k) out[k] /= kBinomial[n][k];
   return n;
 }
 
@@ -382,11 +386,15 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
   const double minWidth = std::max(options.minRelativeWidth * width, 4 * kEps * scale);
   const double tolerance = std::max(2 * kEps * scale, kEps * width);
 
-  // Depth-first over intervals, left half first: an explicit stack of [a,b] pairs.
+  // Depth-first over intervals, left half first: an explicit stack of [a,b] pairs (a plain struct: an array
+  // of std::pair would be zero-filled, 4 KB for every cell a ray meets).
+  struct Interval {
+    double lo, hi;
+  };
   constexpr int kStack = 256;
-  std::array<std::pair<double, double>, kStack> stack;
+  std::array<Interval, kStack> stack;
   int top = 0;
-  stack[top++] = {t0, t1};
+  stack[top++] = Interval{t0, t1};
   // Most cells a ray crosses without a root are decided by a cheap interval bound.
   if (p.excludesZero(t0, t1)) return std::nullopt;
   Coefficients b;
@@ -398,7 +406,7 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
       break;
     }
     ++st.intervals;
-    const int n = p.bernstein(lo, hi, b);
+    const int n = p.scaledBernstein(lo, hi, b);  // signs and ends as the Bernstein coefficients'
     if (b[0] == 0) return Root{lo, RootKind::EndPoint};
     const int changes = signChanges(b, n);
     if (changes == 0) {
@@ -428,8 +436,8 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
       }
       continue;
     }
-    stack[top++] = {mid, hi};
-    stack[top++] = {lo, mid};
+    stack[top++] = Interval{mid, hi};
+    stack[top++] = Interval{lo, mid};
   }
   return std::nullopt;
 }

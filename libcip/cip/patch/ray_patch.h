@@ -67,6 +67,10 @@ class RayPolynomial {
   /// degree. Coefficient 0 is value(a) and coefficient degree is value(b), each computed as in value(). Terms
   /// of equal degree are summed before their sum is degree-elevated, once per degree step.
   int bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const;
+  /// The same in the scaled basis: out[k] = C(degree, k) * Bernstein coefficient k, computed without weights
+  /// (c_k <- l0 c_k + l1 c_{k-1} per linear factor). Same signs and the same end coefficients; the root
+  /// search works on these.
+  int scaledBernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const;
 
  private:
   // Entries past numFactors_, numTerms_ and a term's count are never read, so they are left unwritten.
