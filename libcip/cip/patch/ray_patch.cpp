@@ -309,44 +309,60 @@ int RayPolynomial::scaledBernstein(double a, double b, std::array<double, kMaxDe
     lb[f] = factors_[f](b);
   }
   // In the scaled basis u^k (1-u)^(m-k) a product by a linear factor with end values (l0, l1) is
-  // c_k <- l0 c_k + l1 c_{k-1}, and a degree elevation c_k <- c_k + c_{k-1}: two products and a sum per
-  // coefficient, no weights. The sum of the terms of degree <= m, elevated to degree m, is kept in `out`;
-  // each degree step elevates it once. The end coefficients (the same in both bases) are plain products,
-  // summed apart in term order, so that they equal value(a) and value(b) bit for bit.
+  // c_k <- l0 c_k + l1 c_{k-1}, by its square c_k <- l0^2 c_k + 2 l0 l1 c_{k-1} + l1^2 c_{k-2}, and a degree
+  // elevation c_k <- c_k + c_{k-1}: no weights. The sum of the terms of degree <= m, elevated to degree m, is
+  // kept in `out`; each degree step elevates it once. The end coefficients (the same in both bases) are plain
+  // products, summed apart in term order, so that they equal value(a) and value(b) bit for bit.
   std::array<double, kMaxTerms> ends0, ends1;
   int m = n;
   for (int i = 0; i < numTerms_; ++i) m = std::min(m, terms_[i].degree);
   std::fill(out.begin(), out.begin() + m + 1, 0.0);
-  Coefficients c;
+  // A term's coefficients, two zeros below index 0 so that a step reads c[q - 1] and c[q - 2] unguarded.
+  std::array<double, kMaxDegree + 5> buffer;
+  buffer[0] = buffer[1] = 0;
+  double* const c = buffer.data() + 2;
   for (;; ++m) {
     for (int i = 0; i < numTerms_; ++i) {
       const Term& term = terms_[i];
       if (term.degree != m) continue;
+      // The ends in value()'s order of operations (bit for bit), apart from the interior's steps.
+      double e0 = term.coefficient, e1 = term.coefficient;
       c[0] = term.coefficient;
-      if (m == 0) {
-        out[0] += c[0];
-        ends0[i] = ends1[i] = c[0];
-        continue;
-      }
-      // All factors but the last into c; the last one's product goes straight into `out` (storing it in c and
-      // reading it back stalled on store forwarding).
-      int k = 0;
+      int k = 0;  // degree of c
+      // A squared factor is one step with (l0^2, 2 l0 l1, l1^2): half the dependent steps of two linear ones,
+      // whose latency, not their count, bounds this loop. The last step goes straight into `out`.
       for (int j = 0; j < term.count; ++j) {
         const double l0 = la[term.factor[j]], l1 = lb[term.factor[j]];
-        for (int p = j + 1 < term.count ? 0 : 1; p < term.power[j]; ++p) {
-          c[k + 1] = l1 * c[k];
-          for (int q = k; q >= 1; --q) c[q] = l0 * c[q] + l1 * c[q - 1];
-          c[0] = l0 * c[0];
-          ++k;
+        const bool last = j + 1 == term.count;
+        for (int p = 0; p < term.power[j]; ++p) {
+          e0 *= l0;
+          e1 *= l1;
+        }
+        int steps = term.power[j];
+        c[k + 1] = 0;
+        for (; steps >= 2; steps -= 2) {
+          const double a0 = l0 * l0, a1 = 2 * l0 * l1, a2 = l1 * l1;
+          c[k + 2] = 0;
+          if (last && steps == 2) {
+            for (int q = k + 2; q >= 0; --q) out[q] += a0 * c[q] + a1 * c[q - 1] + a2 * c[q - 2];
+          } else {
+            for (int q = k + 2; q >= 0; --q) c[q] = a0 * c[q] + a1 * c[q - 1] + a2 * c[q - 2];
+          }
+          k += 2;
+          c[k + 1] = 0;
+        }
+        if (steps == 1) {
+          if (last) {
+            for (int q = k + 1; q >= 0; --q) out[q] += l0 * c[q] + l1 * c[q - 1];
+          } else {
+            for (int q = k + 1; q >= 0; --q) c[q] = l0 * c[q] + l1 * c[q - 1];
+          }
+          k += 1;
         }
       }
-      const int last = term.factor[term.count - 1];
-      const double l0 = la[last], l1 = lb[last];
-      ends0[i] = l0 * c[0];
-      ends1[i] = l1 * c[k];
-      out[m] += ends1[i];
-      for (int q = k; q >= 1; --q) out[q] += l0 * c[q] + l1 * c[q - 1];
-      out[0] += ends0[i];
+      if (term.count == 0) out[0] += c[0];
+      ends0[i] = e0;
+      ends1[i] = e1;
     }
     if (m >= n) break;
     out[m + 1] = out[m];
