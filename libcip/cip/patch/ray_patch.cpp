@@ -317,10 +317,8 @@ int RayPolynomial::scaledBernstein(double a, double b, std::array<double, kMaxDe
   int m = n;
   for (int i = 0; i < numTerms_; ++i) m = std::min(m, terms_[i].degree);
   std::fill(out.begin(), out.begin() + m + 1, 0.0);
-  // A term's coefficients, two zeros below index 0 so that a step reads c[q - 1] and c[q - 2] unguarded.
-  std::array<double, kMaxDegree + 5> buffer;
-  buffer[0] = buffer[1] = 0;
-  double* const c = buffer.data() + 2;
+  Coefficients cs;  // a term's coefficients
+  double* const c = cs.data();
   for (;; ++m) {
     for (int i = 0; i < numTerms_; ++i) {
       const Term& term = terms_[i];
@@ -338,24 +336,34 @@ int RayPolynomial::scaledBernstein(double a, double b, std::array<double, kMaxDe
           e0 *= l0;
           e1 *= l1;
         }
+        // Upwards, carrying the two old coefficients below in registers: every load then reads what one store
+        // of the previous step wrote (a vectorised in-place loop reads across two stores, which the processor
+        // cannot forward: a stall per step).
         int steps = term.power[j];
-        c[k + 1] = 0;
         for (; steps >= 2; steps -= 2) {
           const double a0 = l0 * l0, a1 = 2 * l0 * l1, a2 = l1 * l1;
+          double* const dst = last && steps == 2 ? out.data() : c;
+          const bool accumulate = dst != c;
+          double o1 = 0, o2 = 0;
+          c[k + 1] = 0;
           c[k + 2] = 0;
-          if (last && steps == 2) {
-            for (int q = k + 2; q >= 0; --q) out[q] += a0 * c[q] + a1 * c[q - 1] + a2 * c[q - 2];
-          } else {
-            for (int q = k + 2; q >= 0; --q) c[q] = a0 * c[q] + a1 * c[q - 1] + a2 * c[q - 2];
+          for (int q = 0; q <= k + 2; ++q) {
+            const double old = c[q], v = a0 * old + a1 * o1 + a2 * o2;
+            dst[q] = accumulate ? dst[q] + v : v;
+            o2 = o1;
+            o1 = old;
           }
           k += 2;
-          c[k + 1] = 0;
         }
         if (steps == 1) {
-          if (last) {
-            for (int q = k + 1; q >= 0; --q) out[q] += l0 * c[q] + l1 * c[q - 1];
-          } else {
-            for (int q = k + 1; q >= 0; --q) c[q] = l0 * c[q] + l1 * c[q - 1];
+          double* const dst = last ? out.data() : c;
+          const bool accumulate = dst != c;
+          double o1 = 0;
+          c[k + 1] = 0;
+          for (int q = 0; q <= k + 1; ++q) {
+            const double old = c[q], v = l0 * old + l1 * o1;
+            dst[q] = accumulate ? dst[q] + v : v;
+            o1 = old;
           }
           k += 1;
         }
