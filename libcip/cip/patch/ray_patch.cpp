@@ -97,6 +97,9 @@ double refineBracketed(const RayPolynomial& p, double lo, double hi, double valu
 /// few ulps or the value is within the evaluation's rounding. The result is within rounding of the
 /// coefficients of the root; refineBracketed then confirms it on the factored form.
 double bernsteinRoot(const Coefficients& c, int n) {
+  // Close enough for the factored refinement to finish in two evaluations (one Newton step from 1e-9 of the
+  // interval leaves an error far below rounding); the Horner chains here are long, so no further steps.
+  constexpr double kStartTolerance = 1e-9;
   // p(u) = (1-u)^n sum c_i s^i with s = u / (1-u) (for u <= 1/2; mirrored above), and
   // p'(u) = (1-u)^(n-1) sum e_i s^i with e_i = (i+1) c_{i+1} - (n-i) c_i.
   Coefficients e;
@@ -145,7 +148,7 @@ double bernsteinRoot(const Coefficients& c, int n) {
     (g < 0 ? lo : hi) = u;
     double next = dg != 0 ? u - g / dg : 0.5 * (lo + hi);
     if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
-    if (std::abs(g) <= noise || std::abs(next - u) <= 4 * kEps || hi - lo <= 4 * kEps) return next;
+    if (std::abs(g) <= noise || std::abs(next - u) <= kStartTolerance || hi - lo <= kStartTolerance) return next;
     u = next;
   }
   return u;
