@@ -93,12 +93,12 @@ double refineBracketed(const RayPolynomial& p, double lo, double hi, double valu
 /// The root in (0, 1) of the polynomial with scaled Bernstein coefficients c[0..n] on [0, 1] (c_k = C(n, k)
 /// b_k, RayPolynomial::scaledBernstein), whose ends are non-zero with opposite signs and which change sign
 /// once: safeguarded Newton steps on the Bernstein form itself (each evaluation O(n), against O(terms x
-/// degree) for the factored form), started where the control polygon crosses zero, until the step is below a
-/// few ulps or the value is within the evaluation's rounding. The result is within rounding of the
-/// coefficients of the root; refineBracketed then confirms it on the factored form.
+/// degree) for the factored form), started where the control polygon crosses zero, until the step is below
+/// 1e-9 or the value is within the evaluation's rounding. refineBracketed finishes from there on the factored
+/// form.
 double bernsteinRoot(const Coefficients& c, int n) {
-  // Close enough for the factored refinement to finish in two evaluations (one Newton step from 1e-9 of the
-  // interval leaves an error far below rounding); the Horner chains here are long, so no further steps.
+  // Close enough for the factored refinement to finish in one or two evaluations (one Newton step from 1e-9 of
+  // the interval leaves an error far below rounding); the Horner chains here are long, so no further steps.
   constexpr double kStartTolerance = 1e-9;
   // p(u) = (1-u)^n sum c_i s^i with s = u / (1-u) (for u <= 1/2; mirrored above), and
   // p'(u) = (1-u)^(n-1) sum e_i s^i with e_i = (i+1) c_{i+1} - (n-i) c_i.
