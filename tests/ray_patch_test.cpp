@@ -201,7 +201,8 @@ TEST(RayPolynomial, ExcludesZeroOnlyWhereThereIsNoZero) {
       const auto oracle = oracleFirstRoot(spec, a, b, 2000);
       if (!p.excludesZero(a, b)) continue;
       ++excluded;
-      ASSERT_FALSE(oracle) << "trial " << trial << ": a zero at " << *oracle << " in [" << a << ", " << b << "]";
+      ASSERT_FALSE(oracle) << "trial " << trial << ": a zero at " << *oracle << " in [" << a << ", " << b
+                           << "]";
       ASSERT_FALSE(firstRoot(p, a, b)) << trial;
     }
   }

@@ -97,8 +97,9 @@ double refineBracketed(const RayPolynomial& p, double lo, double hi, double valu
 /// 1e-9 or the value is within the evaluation's rounding. refineBracketed finishes from there on the factored
 /// form.
 double bernsteinRoot(const Coefficients& c, int n) {
-  // Close enough for the factored refinement to finish in one or two evaluations (one Newton step from 1e-9 of
-  // the interval leaves an error far below rounding); the Horner chains here are long, so no further steps.
+  // Close enough for the factored refinement to finish in one or two evaluations (one Newton step from 1e-9
+  // of the interval leaves an error far below rounding); the Horner chains here are long, so no further
+  // steps.
   constexpr double kStartTolerance = 1e-9;
   // p(u) = (1-u)^n sum c_i s^i with s = u / (1-u) (for u <= 1/2; mirrored above), and
   // p'(u) = (1-u)^(n-1) sum e_i s^i with e_i = (i+1) c_{i+1} - (n-i) c_i.
@@ -148,7 +149,8 @@ double bernsteinRoot(const Coefficients& c, int n) {
     (g < 0 ? lo : hi) = u;
     double next = dg != 0 ? u - g / dg : 0.5 * (lo + hi);
     if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
-    if (std::abs(g) <= noise || std::abs(next - u) <= kStartTolerance || hi - lo <= kStartTolerance) return next;
+    if (std::abs(g) <= noise || std::abs(next - u) <= kStartTolerance || hi - lo <= kStartTolerance)
+      return next;
     u = next;
   }
   return u;
