@@ -1,10 +1,13 @@
 #include "patch_scene.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <cmath>
 #include <tuple>
 
+#include "cip/patch/patch_bounds.h"
 #include "cip/patch/ray_patch.h"
 #include "cip/topology/cube_topology.h"
 
@@ -40,8 +43,16 @@ void patchBounds(const RTCBoundsFunctionArguments* args) {
   const auto* scene = static_cast<const PatchScene*>(args->geometryUserPtr);
   const Model& m = scene->model();
   const Vec3 cell = m.cellOrigin(args->primID);
-  const Vec3 lo = m.geometry.indexToWorld(cell - Vec3::Constant(kBoundsPad));
-  const Vec3 hi = m.geometry.indexToWorld(cell + Vec3::Constant(1 + kBoundsPad));
+  Vec3 boxLo = Vec3::Zero(), boxHi = Vec3::Ones();
+  if (!zeroMaskBox(scene->zeroMask(args->primID), boxLo, boxHi)) {
+    // No zero anywhere in the cell (cellRoot rejects every ray): an empty box, which Embree leaves out.
+    RTCBounds* b = args->bounds_o;
+    b->lower_x = b->lower_y = b->lower_z = 1.0f;
+    b->upper_x = b->upper_y = b->upper_z = -1.0f;
+    return;
+  }
+  const Vec3 lo = m.geometry.indexToWorld(cell + boxLo - Vec3::Constant(kBoundsPad));
+  const Vec3 hi = m.geometry.indexToWorld(cell + boxHi + Vec3::Constant(kBoundsPad));
   RTCBounds* b = args->bounds_o;
   b->lower_x = roundDownToFloat(lo.x() - 1e-6 * std::abs(lo.x()));
   b->lower_y = roundDownToFloat(lo.y() - 1e-6 * std::abs(lo.y()));
@@ -68,17 +79,26 @@ std::optional<CellHit> cellHit(const PatchRayContext& ctx, std::uint32_t cell) {
   const Vec3 origin = s.frameToLocal(ctx.ray.origin, cell);
   const Vec3 direction =
       ctx.ray.direction.cwiseQuotient(s.model().geometry.spacing);  // same t as the world ray
-  double t0 = 0, t1 = 0;
+  double t0 = 0, t1 = 0, s0 = 0, s1 = 0;
   if (!clipRayToCell(origin, direction, ctx.tNear, ctx.tFar, t0, t1) || (ctx.found && t0 > ctx.bestT))
     return std::nullopt;
   const CornerPatch patch = s.patch(cell);
-  const FaceCaps caps =
-      openFaceCaps(patch, s.model().cells[cell].config, origin, direction, ctx.tNear, ctx.tFar,
-                   [&](int face, const Vec3& local) { return s.signAcross(cell, face, local); });
+  const std::uint64_t mask = s.zeroMask(cell);
+  // An open face whose layer of sub-boxes is unmarked keeps the corners' sign (PatchScene::build): no cap.
+  std::uint8_t sealed = 0;
+  for (int f = 0; f < 6; ++f)
+    if ((mask & zeroMaskFaceLayer(f)) == 0) sealed = static_cast<std::uint8_t>(sealed | (1u << f));
+  const FaceCaps caps = openFaceCaps(
+      patch, s.model().cells[cell].config, origin, direction, ctx.tNear, ctx.tFar,
+      [&](int face, const Vec3& local) { return s.signAcross(cell, face, local); }, sealed);
   if (caps.entry) return CellHit{caps.entry->t, caps.entry};
-  RootSearchOptions options;
-  options.crossingsOnly = true;  // the surface separates value > isovalue from value < isovalue
-  const auto root = intersectRayPatch(patch, origin, direction, ctx.tNear, ctx.tFar, options);
+  // Only the stretch from the first to the last marked sub-box can hold a root.
+  std::optional<Root> root;
+  if (clipRayToZeroMask(origin, direction, t0, t1, mask, s0, s1) && !(ctx.found && s0 > ctx.bestT)) {
+    RootSearchOptions options;
+    options.crossingsOnly = true;  // the surface separates value > isovalue from value < isovalue
+    root = intersectRayPatch(patch, origin, direction, s0, s1, options);
+  }
   if (root && !(caps.exit && caps.exit->t < root->t)) return CellHit{root->t, std::nullopt};
   if (caps.exit) return CellHit{caps.exit->t, caps.exit};
   return std::nullopt;
@@ -140,7 +160,26 @@ PatchScene::PatchScene(const Model& model, const PatchSceneOptions& options)
 void PatchScene::build() {
   const Model& model = model_;
   std::tie(bounds_.lo, bounds_.hi) = worldBounds(model, world_);
-
+  zeroMasks_.resize(model.cells.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, model.cells.size(), 256),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t c = r.begin(); c < r.end(); ++c) {
+                        // Where the patch may vanish, and on each open face's layer where it may have
+                        // the other sign than the face's corners: a hole the renderer closes with a cap
+                        // (open_face_cap.h), which Embree must not cull.
+                        const CornerPatch patch = model.patch(c);
+                        std::uint64_t positive = 0;
+                        std::uint64_t mask = patchZeroMask(patch, &positive);
+                        const std::uint64_t negative = ~(mask | positive);
+                        for (int f = 0; f < 6; ++f)
+                          if (!((patch.faceMask >> f) & 1)) {
+                            const bool cornersPositive =
+                                (model.cells[c].config >> cube::faceVertex(f, 0)) & 1;
+                            mask |= zeroMaskFaceLayer(f) & (cornersPositive ? negative : positive);
+                          }
+                        zeroMasks_[c] = mask;
+                      }
+                    });
   scene_ = rtcNewScene(device_.get());
   rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);

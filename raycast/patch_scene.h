@@ -44,6 +44,9 @@ class PatchScene : public RenderScene {
   /// The cell's patch, assembled from the model when asked for (a copy of the corners; cheaper than faulting
   /// in a table of ~0.8 KB per cell, which was 7 % of a 1024x1024 render's whole process).
   CornerPatch patch(std::uint32_t cell) const { return model_.patch(cell); }
+  /// The cell's sub-boxes where its patch may vanish (patch_bounds.h), and those on an open face's layer
+  /// where it may have the other sign than the face's corners (a hole closed by a cap, open_face_cap.h).
+  std::uint64_t zeroMask(std::uint32_t cell) const { return zeroMasks_[cell]; }
   /// Cell-local coordinates of a world point in cell `cell`.
   Vec3 worldToLocal(const Vec3& world, std::uint32_t cell) const;
   /// Cell-local coordinates of a point of the model's grid frame in cell `cell`.
@@ -73,6 +76,7 @@ class PatchScene : public RenderScene {
   Mat3 gradientToWorld_;  ///< cell-local gradient -> world gradient (world_.indexGradientToWorld)
   bool curvature_ = true;
   Box bounds_;
+  std::vector<std::uint64_t> zeroMasks_;  ///< per cell, zeroMask()
   EmbreeDevice device_;
   RTCScene scene_ = nullptr;
 };

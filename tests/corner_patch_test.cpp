@@ -111,6 +111,15 @@ TEST(CornerPatch, DerivativesMatchFiniteDifferences) {
         }
       }
       EXPECT_NEAR((d.hessian - d.hessian.transpose()).norm(), 0.0, 1e-12);
+      // The renderer's normals: the tabulated value and gradient equal the Jet's to rounding, also on the
+      // cell's faces and outside it.
+      for (const Vec3& y : {x, Vec3(0, x.y(), x.z()), Vec3(x.x(), 1, 1), Vec3(-1e-9, 0.5, 1 + 1e-9)}) {
+        const PatchDerivatives full = p.derivatives(y), fast = p.valueAndGradient(y);
+        const double scale = 1 + full.gradient.norm();
+        EXPECT_NEAR(fast.value, full.value, 1e-14 * scale);
+        EXPECT_LT((fast.gradient - full.gradient).norm(), 1e-14 * scale);
+        EXPECT_EQ(fast.hessian, Mat3::Zero());
+      }
     }
   }
 }

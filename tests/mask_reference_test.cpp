@@ -173,7 +173,7 @@ TEST(LabelMap, TouchingLabelsShareTheirSurface) {
     ASSERT_TRUE(models[l].reconstruction.has_value());
     EXPECT_EQ(*models[l].reconstruction, Reconstruction::Mask);
     EXPECT_EQ(wrongSideCorners(models[l],
-                               sampled(30, [&](const Vec3& x) { return inner(x) > 0 == (l == 0); }), 0.5),
+                               sampled(30, [&](const Vec3& x) { return (inner(x) > 0) == (l == 0); }), 0.5),
               0);
   }
   ASSERT_EQ(models[0].cells.size(), models[1].cells.size());

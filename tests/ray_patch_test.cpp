@@ -174,6 +174,46 @@ TEST(FirstRoot, RandomSumsOfHighDegreeProductsAgreeWithOracle) {
   EXPECT_GT(withRoot, 50);
 }
 
+// The interval bound firstRoot checks first: whenever it excludes zero on [a, b], the polynomial (in long
+// double, densely sampled) keeps one strict sign there, also for squared factors that change sign and odd and
+// even powers; and it never excludes an interval holding a root. It must also decide often enough to pay.
+TEST(RayPolynomial, ExcludesZeroOnlyWhereThereIsNoZero) {
+  std::mt19937_64 rng(77);
+  std::uniform_real_distribution<double> root(-0.5, 1.5), coef(-1, 1), end(0, 1);
+  std::uniform_int_distribution<int> power(1, 3);
+  int excluded = 0, intervals = 0;
+  for (int trial = 0; trial < 400; ++trial) {
+    Spec spec;
+    for (int t = 0; t < 3; ++t) {
+      SpecTerm term{coef(rng), {}};
+      for (int k = 0; k < 3; ++k) {
+        const double r = root(rng), slope = coef(rng);
+        term.factors.push_back({LinearFactor{-slope * r + 0.3 * coef(rng), slope}, power(rng)});
+      }
+      spec.terms.push_back(term);
+    }
+    const RayPolynomial p = spec.build();
+    for (int k = 0; k < 5; ++k) {
+      double a = end(rng), b = end(rng);
+      if (a > b) std::swap(a, b);
+      if (k == 0) b = a + 1e-3 * (b - a);  // short intervals are decided most often
+      ++intervals;
+      const auto oracle = oracleFirstRoot(spec, a, b, 2000);
+      if (!p.excludesZero(a, b)) continue;
+      ++excluded;
+      ASSERT_FALSE(oracle) << "trial " << trial << ": a zero at " << *oracle << " in [" << a << ", " << b
+                           << "]";
+      ASSERT_FALSE(firstRoot(p, a, b)) << trial;
+    }
+  }
+  std::printf("%d of %d intervals excluded\n", excluded, intervals);
+  EXPECT_GT(excluded, intervals / 10);
+  // Identically zero: never excluded. A constant: excluded.
+  const Spec zero{{SpecTerm{0.0, {{LinearFactor{1, 1}, 1}}}}}, constant{{SpecTerm{2.0, {}}}};
+  EXPECT_FALSE(zero.build().excludesZero(0, 1));
+  EXPECT_TRUE(constant.build().excludesZero(0, 1));
+}
+
 TEST(FirstRoot, RootsAtIntervalEnds) {
   // (t - 0.25)(t - 2): root exactly at 0.25 (representable).
   Spec spec{{SpecTerm{1.0, {{LinearFactor{-0.25, 1}, 1}, {LinearFactor{-2, 1}, 1}}}}};

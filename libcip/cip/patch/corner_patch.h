@@ -66,8 +66,8 @@ struct CornerPatch {
   double value(const Vec3& x) const;
   /// Exact value, gradient and Hessian from the factored form (no finite differences).
   PatchDerivatives derivatives(const Vec3& x) const;
-  /// Value and gradient as in derivatives() (bit for bit), without the Hessian (left zero): about half the
-  /// work, for normals.
+  /// Value and gradient as in derivatives() (to rounding, the terms' factors taken in another order), without
+  /// the Hessian (left zero): a quarter of the work, for normals.
   PatchDerivatives valueAndGradient(const Vec3& x) const;
   /// Total polynomial degree (2 |P|, or less when the central coefficient is zero).
   int degree() const;

@@ -31,7 +31,10 @@ std::optional<FaceCap> capAt(const CornerPatch& patch, std::uint8_t config, cons
 }  // namespace
 
 FaceCaps openFaceCaps(const CornerPatch& patch, std::uint8_t config, const Vec3& origin,
-                      const Vec3& direction, double tMin, double tMax, const AcrossFaceSign& across) {
+                      const Vec3& direction, double tMin, double tMax, const AcrossFaceSign& across,
+                      std::uint8_t sealed) {
+  const std::uint8_t skip = static_cast<std::uint8_t>(patch.faceMask | sealed);
+  if (skip == 0x3F) return {};  // every face a bounding plane or sealed
   // The unpadded slabs of the unit cube: the entry is the last slab entered, the exit the first one left.
   double tIn = -std::numeric_limits<double>::infinity(), tOut = std::numeric_limits<double>::infinity();
   int faceIn = -1, faceOut = -1;
@@ -54,9 +57,9 @@ FaceCaps openFaceCaps(const CornerPatch& patch, std::uint8_t config, const Vec3&
   }
   FaceCaps caps;
   if (!(tIn <= tOut)) return caps;
-  if (faceIn >= 0 && tIn >= tMin && tIn <= tMax)
+  if (faceIn >= 0 && !((skip >> faceIn) & 1) && tIn >= tMin && tIn <= tMax)
     caps.entry = capAt(patch, config, origin, direction, tIn, faceIn, across);
-  if (faceOut >= 0 && tOut >= tMin && tOut <= tMax && tOut > tIn)
+  if (faceOut >= 0 && !((skip >> faceOut) & 1) && tOut >= tMin && tOut <= tMax && tOut > tIn)
     caps.exit = capAt(patch, config, origin, direction, tOut, faceOut, across);
   return caps;
 }

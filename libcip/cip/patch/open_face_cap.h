@@ -40,8 +40,11 @@ using AcrossFaceSign = std::function<int(int face, const Vec3& local)>;
 /// isovalue). `across` is asked only where the patch's sign differs from the face corners' sign; without it
 /// the corners' sign stands for the region across (right when the cell across is empty). A zero value of
 /// the patch at the point makes no cap: the patch's own zero set passes there.
+/// Faces in `sealed` (bit f) are known to keep the corners' sign (e.g. from bounds at scene build) and are
+/// not evaluated.
 FaceCaps openFaceCaps(const CornerPatch& patch, std::uint8_t config, const Vec3& origin,
-                      const Vec3& direction, double tMin, double tMax, const AcrossFaceSign& across = {});
+                      const Vec3& direction, double tMin, double tMax, const AcrossFaceSign& across = {},
+                      std::uint8_t sealed = 0);
 
 /// The unit normal of a cap, in cell-local (index) axes, pointing from below the isovalue to above it, as
 /// the gradient of the patch does.

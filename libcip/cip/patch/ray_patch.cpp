@@ -14,22 +14,15 @@ namespace {
 constexpr double kEps = std::numeric_limits<double>::epsilon();
 using Coefficients = std::array<double, RayPolynomial::kMaxDegree + 1>;
 
-/// In place: b (degree m, Bernstein on [a,b]) times the linear function with end values (l0, l1); result
-/// degree m+1. c_k = (l0 b_k (m+1-k) + l1 b_{k-1} k) / (m+1); the end coefficients are plain products so that
-/// they equal the factored evaluation at the interval ends bit for bit.
-void multiplyLinear(Coefficients& b, int m, double l0, double l1) {
-  const double inv = 1.0 / (m + 1);
-  b[m + 1] = l1 * b[m];
-  for (int k = m; k >= 1; --k) b[k] = (l0 * b[k] * (m + 1 - k) + l1 * b[k - 1] * k) * inv;
-  b[0] = l0 * b[0];
-}
-
-/// In place: degree elevation from m to m+1 (multiplication by the constant 1, end values (1, 1)).
-void elevate(Coefficients& b, int m) {
-  const double inv = 1.0 / (m + 1);
-  b[m + 1] = b[m];
-  for (int k = m; k >= 1; --k) b[k] = (b[k] * (m + 1 - k) + b[k - 1] * k) * inv;
-}
+/// Binomial coefficients C(n, k), n <= kMaxDegree (exact in double).
+constexpr auto kBinomial = [] {
+  std::array<std::array<double, RayPolynomial::kMaxDegree + 1>, RayPolynomial::kMaxDegree + 1> t{};
+  for (int n = 0; n <= RayPolynomial::kMaxDegree; ++n) {
+    t[n][0] = 1;
+    for (int k = 1; k <= n; ++k) t[n][k] = t[n - 1][k - 1] + (k < n ? t[n - 1][k] : 0.0);
+  }
+  return t;
+}();
 
 int sign(double x) {
   return (x > 0) - (x < 0);
@@ -48,15 +41,16 @@ int signChanges(const Coefficients& b, int n) {
 }
 
 /// The single root of p in [lo, hi], where p(lo) and p(hi) are non-zero with opposite signs: Newton steps
-/// kept inside the shrinking bracket, bisection whenever a step would leave it or converge slower than
-/// bisection. Stops when |p(x)| is within p's rounding bound at x (its sign there is noise, so further steps
-/// would only wander within the noise; one last Newton step is taken when it stays inside the bracket), when
-/// the bracket or the step is below `tolerance`, or after maxIterations.
+/// from `start` (the midpoint when it is not inside the bracket) kept inside the shrinking bracket, bisection
+/// whenever a step would leave it or converge slower than bisection. Stops when |p(x)| is within p's rounding
+/// bound at x (its sign there is noise, so further steps would only wander within the noise; one last Newton
+/// step is taken when it stays inside the bracket), when the bracket or the step is below `tolerance`, or
+/// after maxIterations.
 double refineBracketed(const RayPolynomial& p, double lo, double hi, double valueLo, double tolerance,
-                       int maxIterations) {
+                       int maxIterations, double start) {
   // Orient so that g = s * p is negative at lo and positive at hi.
   const double s = valueLo < 0 ? 1.0 : -1.0;
-  double x = 0.5 * (lo + hi);
+  double x = start > lo && start < hi ? start : 0.5 * (lo + hi);
   double dxOld = hi - lo, dx = dxOld;
   double g = 0, dg = 0, bound = 0;
   p.valueDerivativeAndBound(x, g, dg, bound);
@@ -96,38 +90,76 @@ double refineBracketed(const RayPolynomial& p, double lo, double hi, double valu
   return std::clamp(x, lo, hi);
 }
 
+/// The root in (0, 1) of the polynomial with scaled Bernstein coefficients c[0..n] on [0, 1] (c_k = C(n, k)
+/// b_k, RayPolynomial::scaledBernstein), whose ends are non-zero with opposite signs and which change sign
+/// once: safeguarded Newton steps on the Bernstein form itself (each evaluation O(n), against O(terms x
+/// degree) for the factored form), started where the control polygon crosses zero, until the step is below
+/// 1e-9 or the value is within the evaluation's rounding. refineBracketed finishes from there on the factored
+/// form.
+double bernsteinRoot(const Coefficients& c, int n) {
+  // Close enough for the factored refinement to finish in one or two evaluations (one Newton step from 1e-9
+  // of the interval leaves an error far below rounding); the Horner chains here are long, so no further
+  // steps.
+  constexpr double kStartTolerance = 1e-9;
+  // p(u) = (1-u)^n sum c_i s^i with s = u / (1-u) (for u <= 1/2; mirrored above), and
+  // p'(u) = (1-u)^(n-1) sum e_i s^i with e_i = (i+1) c_{i+1} - (n-i) c_i.
+  Coefficients e;
+  for (int i = 0; i < n; ++i) e[i] = (i + 1) * c[i + 1] - (n - i) * c[i];
+  auto evaluate = [&](double u, double& value, double& derivative, double& noise) {
+    const bool low = u <= 0.5;
+    const double w = low ? 1.0 - u : u, s = (low ? u : 1.0 - u) / w;
+    double v = 0, d = 0, m = 0;
+    if (low) {
+      for (int i = n; i >= 0; --i) {
+        v = v * s + c[i];
+        m = m * s + std::abs(c[i]);
+      }
+      for (int i = n - 1; i >= 0; --i) d = d * s + e[i];
+    } else {
+      for (int i = 0; i <= n; ++i) {
+        v = v * s + c[i];
+        m = m * s + std::abs(c[i]);
+      }
+      for (int i = 0; i < n; ++i) d = d * s + e[i];
+    }
+    double wn1 = 1;
+    for (int i = 1; i < n; ++i) wn1 *= w;
+    value = v * wn1 * w;
+    derivative = d * wn1;
+    noise = 4 * (n + 2) * kEps * m * wn1 * w;
+  };
+  // Orient so that g = sign * p is negative at 0 and positive at 1.
+  const double sign = c[0] < 0 ? 1.0 : -1.0;
+  // Start where the control polygon (k / n, b_k) crosses zero.
+  int k = 0, j = 1;
+  while (j < n && !(c[j] != 0 && (c[j] < 0) != (c[0] < 0))) {
+    if (c[j] != 0) k = j;
+    ++j;
+  }
+  const double bk = c[k] / kBinomial[n][k], bj = c[j] / kBinomial[n][j];
+  double u = (k + (j - k) * (bk / (bk - bj))) / n;
+  double lo = 0, hi = 1;
+  if (!(u > lo && u < hi)) u = 0.5;
+  for (int it = 0; it < 60; ++it) {
+    double g, dg, noise;
+    evaluate(u, g, dg, noise);
+    g *= sign;
+    dg *= sign;
+    if (g == 0) return u;
+    (g < 0 ? lo : hi) = u;
+    double next = dg != 0 ? u - g / dg : 0.5 * (lo + hi);
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    if (std::abs(g) <= noise || std::abs(next - u) <= kStartTolerance || hi - lo <= kStartTolerance)
+      return next;
+    u = next;
+  }
+  return u;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------------------------
 // RayPolynomial
-
-int RayPolynomial::addFactor(const LinearFactor& factor) {
-  if (numFactors_ >= kMaxFactors) throw std::length_error("RayPolynomial: too many factors");
-  factors_[numFactors_] = factor;
-  return numFactors_++;
-}
-
-int RayPolynomial::addTerm(double coefficient) {
-  if (numTerms_ >= kMaxTerms) throw std::length_error("RayPolynomial: too many terms");
-  Term& term = terms_[numTerms_];
-  term.coefficient = coefficient;
-  term.count = 0;
-  term.degree = 0;
-  return numTerms_++;
-}
-
-void RayPolynomial::multiplyTerm(int term, int factor, int power) {
-  if (term < 0 || term >= numTerms_ || factor < 0 || factor >= numFactors_ || power < 1)
-    throw std::length_error("RayPolynomial: bad term, factor or power");
-  Term& t = terms_[term];
-  if (t.count >= kMaxTermFactors || t.degree + power > kMaxDegree)
-    throw std::length_error("RayPolynomial: term degree too high");
-  t.factor[t.count] = static_cast<std::uint8_t>(factor);
-  t.power[t.count] = static_cast<std::uint8_t>(power);
-  ++t.count;
-  t.degree += power;
-  degree_ = std::max(degree_, t.degree);
-}
 
 double RayPolynomial::value(double t) const {
   std::array<double, kMaxFactors> l;
@@ -220,46 +252,134 @@ void RayPolynomial::valueDerivativeAndBound(double t, double& value, double& der
   bound = 4.0 * (spread + (degree_ + numTerms_ + 2) * kEps * size);
 }
 
-int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const {
+bool RayPolynomial::excludesZero(double a, double b) const {
+  // Each factor's range on [a, b], and the range of its square.
+  std::array<double, kMaxFactors> lo, hi, sqLo, sqHi;
+  for (int f = 0; f < numFactors_; ++f) {
+    const double va = factors_[f](a), vb = factors_[f](b);
+    lo[f] = std::min(va, vb);
+    hi[f] = std::max(va, vb);
+    sqHi[f] = std::max(va * va, vb * vb);
+    sqLo[f] = lo[f] >= 0 ? lo[f] * lo[f] : (hi[f] <= 0 ? hi[f] * hi[f] : 0.0);
+  }
+  double sumLo = 0, sumHi = 0, size = 0;
+  for (int i = 0; i < numTerms_; ++i) {
+    const Term& term = terms_[i];
+    // The term's range as [sl, sh] x [ql, qh]: the non-negative powers (squares, factors without a negative
+    // value) multiplied into [ql, qh], every other one into the signed [sl, sh].
+    double sl = term.coefficient, sh = term.coefficient, ql = 1, qh = 1;
+    for (int j = 0; j < term.count; ++j) {
+      const int f = term.factor[j], power = term.power[j];
+      if (power == 2) {
+        ql *= sqLo[f];
+        qh *= sqHi[f];
+        continue;
+      }
+      if (power == 1 && lo[f] >= 0) {
+        ql *= lo[f];
+        qh *= hi[f];
+        continue;
+      }
+      // The range of factor^power: monotone for odd powers, through zero for even powers of a factor that
+      // changes sign.
+      double gl = lo[f], gh = hi[f];
+      if (power % 2 == 0 && gl < 0) {
+        const double m = std::max(-gl, std::abs(gh));
+        gl = gh <= 0 ? -gh : 0.0;
+        gh = m;
+      }
+      double pl = gl, ph = gh;
+      for (int k = 1; k < power; ++k) {
+        pl *= gl;
+        ph *= gh;
+      }
+      const double p0 = sl * pl, p1 = sl * ph, p2 = sh * pl, p3 = sh * ph;
+      sl = std::min(std::min(p0, p1), std::min(p2, p3));
+      sh = std::max(std::max(p0, p1), std::max(p2, p3));
+    }
+    const double tl = sl >= 0 ? sl * ql : sl * qh, th = sh >= 0 ? sh * qh : sh * ql;
+    sumLo += tl;
+    sumHi += th;
+    size += std::max(-tl, th);
+  }
+  const double margin = 1e-12 * size;
+  return size > 0 && (sumLo > margin || sumHi < -margin);
+}
+
+int RayPolynomial::scaledBernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const {
   const int n = degree_;
   std::array<double, kMaxFactors> la, lb;
   for (int f = 0; f < numFactors_; ++f) {
     la[f] = factors_[f](a);
     lb[f] = factors_[f](b);
   }
-  // The sum of the terms of degree <= m, elevated to degree m, is kept in `out`; each degree step elevates it
-  // once. The end coefficients are summed apart, in term order, so that they equal value(a) and value(b).
+  // In the scaled basis u^k (1-u)^(m-k) a product by a linear factor with end values (l0, l1) is
+  // c_k <- l0 c_k + l1 c_{k-1}, by its square c_k <- l0^2 c_k + 2 l0 l1 c_{k-1} + l1^2 c_{k-2}, and a degree
+  // elevation c_k <- c_k + c_{k-1}: no weights. The sum of the terms of degree <= m, elevated to degree m, is
+  // kept in `out`; each degree step elevates it once. The end coefficients (the same in both bases) are plain
+  // products, summed apart in term order, so that they equal value(a) and value(b) bit for bit.
   std::array<double, kMaxTerms> ends0, ends1;
   int m = n;
   for (int i = 0; i < numTerms_; ++i) m = std::min(m, terms_[i].degree);
   std::fill(out.begin(), out.begin() + m + 1, 0.0);
-  Coefficients c;
+  Coefficients cs;  // a term's coefficients
+  double* const c = cs.data();
   for (;; ++m) {
     for (int i = 0; i < numTerms_; ++i) {
       const Term& term = terms_[i];
       if (term.degree != m) continue;
+      // The ends in value()'s order of operations (bit for bit), apart from the interior's steps.
+      double e0 = term.coefficient, e1 = term.coefficient;
       c[0] = term.coefficient;
-      if (m == 0) {
-        out[0] += c[0];
-        ends0[i] = ends1[i] = c[0];
-        continue;
+      int k = 0;  // degree of c
+      // A squared factor is one step with (l0^2, 2 l0 l1, l1^2): half the dependent steps of two linear ones,
+      // whose latency, not their count, bounds this loop. The last step goes straight into `out`.
+      for (int j = 0; j < term.count; ++j) {
+        const double l0 = la[term.factor[j]], l1 = lb[term.factor[j]];
+        const bool last = j + 1 == term.count;
+        for (int p = 0; p < term.power[j]; ++p) {
+          e0 *= l0;
+          e1 *= l1;
+        }
+        // Upwards, carrying the two old coefficients below in registers: every load then reads what one store
+        // of the previous step wrote (a vectorised in-place loop reads across two stores, which the processor
+        // cannot forward: a stall per step).
+        int steps = term.power[j];
+        for (; steps >= 2; steps -= 2) {
+          const double a0 = l0 * l0, a1 = 2 * l0 * l1, a2 = l1 * l1;
+          double* const dst = last && steps == 2 ? out.data() : c;
+          const bool accumulate = dst != c;
+          double o1 = 0, o2 = 0;
+          c[k + 1] = 0;
+          c[k + 2] = 0;
+          for (int q = 0; q <= k + 2; ++q) {
+            const double old = c[q], v = a0 * old + a1 * o1 + a2 * o2;
+            dst[q] = accumulate ? dst[q] + v : v;
+            o2 = o1;
+            o1 = old;
+          }
+          k += 2;
+        }
+        if (steps == 1) {
+          double* const dst = last ? out.data() : c;
+          const bool accumulate = dst != c;
+          double o1 = 0;
+          c[k + 1] = 0;
+          for (int q = 0; q <= k + 1; ++q) {
+            const double old = c[q], v = l0 * old + l1 * o1;
+            dst[q] = accumulate ? dst[q] + v : v;
+            o1 = old;
+          }
+          k += 1;
+        }
       }
-      // All factors but the last into c; the last one's product goes straight into `out` (storing it in c and
-      // reading it back stalled on store forwarding), with the same operations as multiplyLinear.
-      int k = 0;
-      for (int j = 0; j < term.count; ++j)
-        for (int p = j + 1 < term.count ? 0 : 1; p < term.power[j]; ++p)
-          multiplyLinear(c, k++, la[term.factor[j]], lb[term.factor[j]]);
-      const int last = term.factor[term.count - 1];
-      const double l0 = la[last], l1 = lb[last], inv = 1.0 / m;
-      ends0[i] = l0 * c[0];
-      ends1[i] = l1 * c[k];
-      out[m] += ends1[i];
-      for (int q = k; q >= 1; --q) out[q] += (l0 * c[q] * (m - q) + l1 * c[q - 1] * q) * inv;
-      out[0] += ends0[i];
+      if (term.count == 0) out[0] += c[0];
+      ends0[i] = e0;
+      ends1[i] = e1;
     }
     if (m >= n) break;
-    elevate(out, m);
+    out[m + 1] = out[m];
+    for (int k = m; k >= 1; --k) out[k] += out[k - 1];
   }
   double end0 = 0, end1 = 0;
   for (int i = 0; i < numTerms_; ++i) {
@@ -268,6 +388,12 @@ int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree +
   }
   out[0] = end0;
   out[n] = end1;
+  return n;
+}
+
+int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const {
+  const int n = scaledBernstein(a, b, out);
+  for (int k = 1; k < n; ++k) out[k] /= kBinomial[n][k];
   return n;
 }
 
@@ -289,11 +415,17 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
   const double minWidth = std::max(options.minRelativeWidth * width, 4 * kEps * scale);
   const double tolerance = std::max(2 * kEps * scale, kEps * width);
 
-  // Depth-first over intervals, left half first: an explicit stack of [a,b] pairs.
+  // Depth-first over intervals, left half first: an explicit stack of [a,b] pairs (a plain struct: an array
+  // of std::pair would be zero-filled, 4 KB for every cell a ray meets).
+  struct Interval {
+    double lo, hi;
+  };
   constexpr int kStack = 256;
-  std::array<std::pair<double, double>, kStack> stack;
+  std::array<Interval, kStack> stack;
   int top = 0;
-  stack[top++] = {t0, t1};
+  stack[top++] = Interval{t0, t1};
+  // Most cells a ray crosses without a root are decided by a cheap interval bound.
+  if (p.excludesZero(t0, t1)) return std::nullopt;
   Coefficients b;
   int examined = 0;
   while (top > 0) {
@@ -303,7 +435,7 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
       break;
     }
     ++st.intervals;
-    const int n = p.bernstein(lo, hi, b);
+    const int n = p.scaledBernstein(lo, hi, b);  // signs and ends as the Bernstein coefficients'
     if (b[0] == 0) return Root{lo, RootKind::EndPoint};
     const int changes = signChanges(b, n);
     if (changes == 0) {
@@ -312,7 +444,8 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
     }
     if (changes == 1 && b[n] != 0) {
       ++st.refinements;
-      return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations),
+      const double start = lo + bernsteinRoot(b, n) * (hi - lo);
+      return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations, start),
                   RootKind::Bracketed};
     }
     const double mid = lo + 0.5 * (hi - lo);
@@ -320,7 +453,7 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
       // Depth limit: the roots here cannot be separated in double precision.
       if (sign(b[0]) * sign(b[n]) < 0) {  // odd count: a root exists by the intermediate value theorem
         ++st.refinements;
-        return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations),
+        return Root{refineBracketed(p, lo, hi, b[0], tolerance, options.maxRefineIterations, mid),
                     RootKind::Bracketed};
       }
       if (b[n] == 0) return Root{hi, RootKind::EndPoint};
@@ -332,8 +465,8 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
       }
       continue;
     }
-    stack[top++] = {mid, hi};
-    stack[top++] = {lo, mid};
+    stack[top++] = Interval{mid, hi};
+    stack[top++] = Interval{lo, mid};
   }
   return std::nullopt;
 }

@@ -9,6 +9,7 @@
 #include <array>
 #include <cstdint>
 #include <optional>
+#include <stdexcept>
 
 #include "cip/patch/corner_patch.h"
 
@@ -56,10 +57,20 @@ class RayPolynomial {
   /// valueAndDerivative and roundingBound at t in one pass over the terms (the same three numbers).
   void valueDerivativeAndBound(double t, double& value, double& derivative, double& bound) const;
 
+  /// Whether interval arithmetic over [a,b] (each factor's range from its end values, multiplied term by
+  /// term) proves |value| larger than 1e-12 of the terms' magnitude bound everywhere on [a,b]: far above the
+  /// rounding of any evaluation, so no root search on [a,b] can report a root (firstRoot checks it before the
+  /// first Bernstein conversion, which costs an order of magnitude more).
+  bool excludesZero(double a, double b) const;
+
   /// Bernstein coefficients on [a,b] (degree = degree()), built from the factors' end values; returns the
   /// degree. Coefficient 0 is value(a) and coefficient degree is value(b), each computed as in value(). Terms
   /// of equal degree are summed before their sum is degree-elevated, once per degree step.
   int bernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const;
+  /// The same in the scaled basis: out[k] = C(degree, k) * Bernstein coefficient k, computed without weights
+  /// (c_k <- l0 c_k + l1 c_{k-1} per linear factor). Same signs and the same end coefficients; the root
+  /// search works on these.
+  int scaledBernstein(double a, double b, std::array<double, kMaxDegree + 1>& out) const;
 
  private:
   // Entries past numFactors_, numTerms_ and a term's count are never read, so they are left unwritten.
@@ -76,6 +87,36 @@ class RayPolynomial {
   int numTerms_ = 0;
   int degree_ = 0;
 };
+
+// Inline: rayPolynomial calls these some fifty times for every cell a ray meets.
+
+inline int RayPolynomial::addFactor(const LinearFactor& factor) {
+  if (numFactors_ >= kMaxFactors) throw std::length_error("RayPolynomial: too many factors");
+  factors_[numFactors_] = factor;
+  return numFactors_++;
+}
+
+inline int RayPolynomial::addTerm(double coefficient) {
+  if (numTerms_ >= kMaxTerms) throw std::length_error("RayPolynomial: too many terms");
+  Term& term = terms_[numTerms_];
+  term.coefficient = coefficient;
+  term.count = 0;
+  term.degree = 0;
+  return numTerms_++;
+}
+
+inline void RayPolynomial::multiplyTerm(int term, int factor, int power) {
+  if (term < 0 || term >= numTerms_ || factor < 0 || factor >= numFactors_ || power < 1)
+    throw std::length_error("RayPolynomial: bad term, factor or power");
+  Term& t = terms_[term];
+  if (t.count >= kMaxTermFactors || t.degree + power > kMaxDegree)
+    throw std::length_error("RayPolynomial: term degree too high");
+  t.factor[t.count] = static_cast<std::uint8_t>(factor);
+  t.power[t.count] = static_cast<std::uint8_t>(power);
+  ++t.count;
+  t.degree += power;
+  if (t.degree > degree_) degree_ = t.degree;
+}
 
 /// Limits of the root search.
 struct RootSearchOptions {
