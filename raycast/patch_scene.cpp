@@ -45,7 +45,8 @@ void patchBounds(const RTCBoundsFunctionArguments* args) {
   const Vec3 cell = m.cellOrigin(args->primID);
   Vec3 boxLo = Vec3::Zero(), boxHi = Vec3::Ones();
   if (!zeroMaskBox(scene->zeroMask(args->primID), boxLo, boxHi)) {
-    // No zero anywhere in the cell (cellRoot rejects every ray): an empty box, which Embree leaves out.
+    // No zero and no hole anywhere in the cell (cellHit rejects every ray): an empty box, which Embree leaves
+    // out.
     RTCBounds* b = args->bounds_o;
     b->lower_x = b->lower_y = b->lower_z = 1.0f;
     b->upper_x = b->upper_y = b->upper_z = -1.0f;

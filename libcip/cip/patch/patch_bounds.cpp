@@ -169,18 +169,6 @@ std::uint64_t patchZeroMask(const CornerPatch& patch, std::uint64_t* positive) {
   return mask;
 }
 
-std::uint64_t zeroMaskFaceLayer(int face) {
-  const int axis = face / 2, layer = (face & 1) ? kN - 1 : 0;
-  std::uint64_t bits = 0;
-  for (int k = 0; k < kN; ++k)
-    for (int j = 0; j < kN; ++j)
-      for (int i = 0; i < kN; ++i) {
-        const std::array<int, 3> c{i, j, k};
-        if (c[axis] == layer) bits |= std::uint64_t{1} << (i + kN * j + kN * kN * k);
-      }
-  return bits;
-}
-
 bool zeroMaskBox(std::uint64_t mask, Vec3& lo, Vec3& hi) {
   if (mask == 0) return false;
   std::array<int, 3> first{kN, kN, kN}, last{-1, -1, -1};

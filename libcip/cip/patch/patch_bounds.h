@@ -29,8 +29,27 @@ constexpr double kZeroMaskPad = 1e-7;
 /// are not in the returned mask are proven below it).
 std::uint64_t patchZeroMask(const CornerPatch& patch, std::uint64_t* positive = nullptr);
 
-/// The 16 sub-boxes of the mask that touch cell face f (cube_topology.h numbering).
-std::uint64_t zeroMaskFaceLayer(int face);
+namespace detail {
+constexpr std::uint64_t computeFaceLayer(int face) {
+  const int axis = face / 2, layer = (face & 1) ? kZeroMaskDivisions - 1 : 0;
+  std::uint64_t bits = 0;
+  for (int k = 0; k < kZeroMaskDivisions; ++k)
+    for (int j = 0; j < kZeroMaskDivisions; ++j)
+      for (int i = 0; i < kZeroMaskDivisions; ++i)
+        if ((axis == 0 ? i : axis == 1 ? j : k) == layer)
+          bits |= std::uint64_t{1} << (i + kZeroMaskDivisions * (j + kZeroMaskDivisions * k));
+  return bits;
+}
+inline constexpr std::uint64_t kFaceLayers[6] = {computeFaceLayer(0), computeFaceLayer(1),
+                                                 computeFaceLayer(2), computeFaceLayer(3),
+                                                 computeFaceLayer(4), computeFaceLayer(5)};
+}  // namespace detail
+
+/// The 16 sub-boxes of the mask that touch cell face f (cube_topology.h numbering). A table lookup: the
+/// renderer asks it for every cell test.
+constexpr std::uint64_t zeroMaskFaceLayer(int face) {
+  return detail::kFaceLayers[face];
+}
 
 /// Cell-local box [lo, hi] of the marked sub-boxes (unpadded); false when the mask is empty.
 bool zeroMaskBox(std::uint64_t mask, Vec3& lo, Vec3& hi);
