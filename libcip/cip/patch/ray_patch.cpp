@@ -46,7 +46,8 @@ int signChanges(const Coefficients& b, int n) {
 /// bound at x (its sign there is noise, so further steps would only wander within the noise; one last Newton
 /// step is taken when it stays inside the bracket), when the bracket or the step is below `tolerance`, or
 /// after maxIterations.
-double refineBracketed(const RayPolynomial& p, double lo, double hi, double valueLo, double tolerance,
+template <class Polynomial>
+double refineBracketed(const Polynomial& p, double lo, double hi, double valueLo, double tolerance,
                        int maxIterations, double start) {
   // Orient so that g = s * p is negative at lo and positive at hi.
   const double s = valueLo < 0 ? 1.0 : -1.0;
@@ -400,8 +401,11 @@ int RayPolynomial::bernstein(double a, double b, std::array<double, kMaxDegree +
 // ---------------------------------------------------------------------------------------------------------------------
 // Root search
 
-std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, const RootSearchOptions& options,
-                              RootSearchStats* stats) {
+namespace {
+
+template <class Polynomial>
+std::optional<Root> firstRootOf(const Polynomial& p, double t0, double t1, const RootSearchOptions& options,
+                                RootSearchStats* stats) {
   RootSearchStats local;
   RootSearchStats& st = stats ? *stats : local;
   ++st.searches;
@@ -471,13 +475,14 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, cons
   return std::nullopt;
 }
 
-std::optional<Root> firstCrossing(const RayPolynomial& p, double t0, double t1,
-                                  const RootSearchOptions& options, RootSearchStats* stats) {
+template <class Polynomial>
+std::optional<Root> firstCrossingOf(const Polynomial& p, double t0, double t1,
+                                    const RootSearchOptions& options, RootSearchStats* stats) {
   if (!(t0 <= t1)) return std::nullopt;
   const double e = std::max(1e-9 * (t1 - t0), 4 * kEps * std::max(std::abs(t0), std::abs(t1)));
   double start = t0;
   for (int attempt = 0; attempt < 16; ++attempt) {
-    auto root = firstRoot(p, start, t1, options, stats);
+    auto root = firstRootOf(p, start, t1, options, stats);
     if (!root || root->kind == RootKind::Bracketed) return root;
     const double before = p.value(root->t - e), after = p.value(root->t + e);
     if (before != 0 && after != 0 && (before < 0) != (after < 0)) return root;
@@ -485,6 +490,28 @@ std::optional<Root> firstCrossing(const RayPolynomial& p, double t0, double t1,
     if (!(start <= t1)) return std::nullopt;
   }
   return std::nullopt;
+}
+
+}  // namespace
+
+std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1, const RootSearchOptions& options,
+                              RootSearchStats* stats) {
+  return firstRootOf(p, t0, t1, options, stats);
+}
+
+std::optional<Root> firstRoot(const PatchRayPolynomial& p, double t0, double t1,
+                              const RootSearchOptions& options, RootSearchStats* stats) {
+  return firstRootOf(p, t0, t1, options, stats);
+}
+
+std::optional<Root> firstCrossing(const RayPolynomial& p, double t0, double t1,
+                                  const RootSearchOptions& options, RootSearchStats* stats) {
+  return firstCrossingOf(p, t0, t1, options, stats);
+}
+
+std::optional<Root> firstCrossing(const PatchRayPolynomial& p, double t0, double t1,
+                                  const RootSearchOptions& options, RootSearchStats* stats) {
+  return firstCrossingOf(p, t0, t1, options, stats);
 }
 
 RayPolynomial rayPolynomial(const CornerPatch& patch, const Vec3& origin, const Vec3& direction) {
@@ -546,7 +573,7 @@ std::optional<Root> intersectRayPatch(const CornerPatch& patch, const Vec3& orig
                                       RootSearchStats* stats, double pad) {
   double t0 = 0, t1 = 0;
   if (!clipRayToCell(origin, direction, tMin, tMax, t0, t1, pad)) return std::nullopt;
-  const RayPolynomial poly = rayPolynomial(patch, origin + t0 * direction, direction);
+  const PatchRayPolynomial poly(patch, origin + t0 * direction, direction);
   auto root = options.crossingsOnly ? firstCrossing(poly, 0.0, t1 - t0, options, stats)
                                     : firstRoot(poly, 0.0, t1 - t0, options, stats);
   if (!root) return std::nullopt;

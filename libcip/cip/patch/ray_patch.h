@@ -12,6 +12,7 @@
 #include <stdexcept>
 
 #include "cip/patch/corner_patch.h"
+#include "cip/patch/patch_ray_polynomial.h"
 
 namespace cip {
 
@@ -156,6 +157,9 @@ struct Root {
 /// First root of `p` in the closed interval [t0, t1] (t0 <= t1), or nothing. Deterministic.
 std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1,
                               const RootSearchOptions& options = {}, RootSearchStats* stats = nullptr);
+/// The same search on a patch kept in its own form (patch_ray_polynomial.h).
+std::optional<Root> firstRoot(const PatchRayPolynomial& p, double t0, double t1,
+                              const RootSearchOptions& options = {}, RootSearchStats* stats = nullptr);
 
 /// First zero of `p` in [t0, t1] at which p changes sign: like firstRoot, but a zero found at an interval end
 /// or as a touch is accepted only if p(t - e) and p(t + e) are non-zero with opposite signs, e = 1e-9 (t1 -
@@ -164,6 +168,8 @@ std::optional<Root> firstRoot(const RayPolynomial& p, double t0, double t1,
 /// vertices and along the edges shared by two bounding planes that no corner lies on (each term has a squared
 /// bounding plane vanishing there).
 std::optional<Root> firstCrossing(const RayPolynomial& p, double t0, double t1,
+                                  const RootSearchOptions& options = {}, RootSearchStats* stats = nullptr);
+std::optional<Root> firstCrossing(const PatchRayPolynomial& p, double t0, double t1,
                                   const RootSearchOptions& options = {}, RootSearchStats* stats = nullptr);
 
 /// The patch restricted to the ray origin + t * direction (cell-local coordinates; t in units of
@@ -182,7 +188,8 @@ bool clipRayToCell(const Vec3& origin, const Vec3& direction, double tMin, doubl
 
 /// The first intersection of the ray origin + t * direction (cell-local coordinates of the patch's cell) with
 /// the patch's zero set, with t in [tMin, tMax] clipped to the padded cell box. Internally the ray is
-/// re-based at the clipped entry point so the root finder works on [0, t1 - t0]. Returns the ray parameter t
+/// re-based at the clipped entry point so the root finder works on [0, t1 - t0], on the patch in its own form
+/// (PatchRayPolynomial). Returns the ray parameter t
 /// (same units as tMin).
 std::optional<Root> intersectRayPatch(const CornerPatch& patch, const Vec3& origin, const Vec3& direction,
                                       double tMin, double tMax, const RootSearchOptions& options = {},
