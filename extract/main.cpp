@@ -261,22 +261,6 @@ std::string labelPath(const std::string& path, std::int64_t label) {
   return p.has_parent_path() ? (p.parent_path() / stem).string() : stem;
 }
 
-/// The non-zero labels of a label map, in increasing order; throws when a sample is not an integer.
-std::vector<std::int64_t> labelsOf(const cip::SparseVolume& volume) {
-  std::vector<std::int64_t> labels;
-  for (const cip::GridBrick& b : volume.bricks) {
-    for (const double v : b.grid->values) {
-      if (!(std::abs(v) < 9e15) || v != std::round(v))
-        throw cip::Error("--labels needs a label map (integer samples); found " + std::to_string(v));
-      const auto l = static_cast<std::int64_t>(v);
-      if (l != 0 && (labels.empty() || labels.back() != l) &&
-          !std::binary_search(labels.begin(), labels.end(), l))
-        labels.insert(std::upper_bound(labels.begin(), labels.end(), l), l);
-    }
-  }
-  return labels;
-}
-
 int runOne(const Options& opt, const Input& in, cip::BuildOptions options, cip::ExtractStats stats);
 
 int run(const Options& opt) {
@@ -300,7 +284,7 @@ int run(const Options& opt) {
 
   options.isovalue = opt.labels || opt.label ? 0.0 : isovalue(opt, in);
   if (opt.labels) {
-    const std::vector<std::int64_t> labels = labelsOf(in.volume);
+    const std::vector<std::int64_t> labels = cip::labelsOf(in.volume);
     if (labels.empty()) throw cip::Error(opt.input + ": --labels found no non-zero label");
     for (const std::int64_t label : labels) {
       Options one = opt;

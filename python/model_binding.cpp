@@ -55,15 +55,26 @@ Model buildNaming(const std::function<Model()>& build) {
   }
 }
 
-/// The result of _extract: the model and the data's finite range (the Python layer warns when the isovalue
-/// lies outside it, as the command line does).
+/// The result of _extract: a list of (label, model) pairs and the data's finite range (the Python layer warns
+/// when the isovalue lies outside it, as the command line does). `label` is None (one model at `level`, label
+/// None), an integer (the surface of that label of a label map) or "all" (one model per non-zero label, in
+/// increasing order), as `extract --label N` and `--labels`; the volume is read once.
 py::tuple extract(const py::object& input, const py::object& level, const py::object& spacing,
                   const py::object& origin, const std::string& method, const std::string& normals,
                   const std::string& reconstruction, int threads, const py::object& progress,
-                  bool skipNonFinite, const std::string& grid, int frame) {
+                  bool skipNonFinite, const std::string& grid, int frame, const py::object& label) {
   BuildOptions options = buildOptions(method, normals, reconstruction, threads, skipNonFinite);
   const std::optional<double> iso =
       level.is_none() ? std::nullopt : std::optional<double>(level.cast<double>());
+  const bool allLabels = py::isinstance<py::str>(label);
+  if (allLabels && label.cast<std::string>() != "all")
+    throw Error("label must be an integer, 'all' or None, not '" + label.cast<std::string>() + "'");
+  const bool byLabel = allLabels || !label.is_none();
+  if (byLabel) {
+    if (iso) throw Error("give level or label, not both: a label's surface has no isovalue");
+    if (options.method != PatchMethod::Fitted) throw Error("label needs method='fitted'");
+    options.label = allLabels ? std::int64_t{0} : label.cast<std::int64_t>();  // 0: the apron of any label
+  }
   std::optional<VolumeArray> array;
   std::string path;
   if (py::isinstance<py::str>(input)) {
@@ -74,35 +85,52 @@ py::tuple extract(const py::object& input, const py::object& level, const py::ob
     array.emplace(py::array::ensure(input), optionalVec3(spacing, "spacing").value_or(Vec3::Ones()),
                   optionalVec3(origin, "origin").value_or(Vec3::Zero()));
   }
-  auto model = std::make_shared<Model>();
+  std::vector<std::pair<std::optional<std::int64_t>, std::shared_ptr<Model>>> models;
   std::pair<double, double> range;
   runCancellable(
       [&](const ReportProgress& report) {
         tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
         arena.execute([&] {
-          options.progress = report;
+          SparseVolume volume;
           if (array) {
-            const DenseGrid g = array->toGrid("numpy array");
-            range = g.range();
+            volume = fromDense(array->toGrid("numpy array"));
+            range = volume.range();
             options.isovalue = iso.value_or(0.5 * (range.first + range.second));
-            *model = storedModel(buildNaming([&] { return buildModel(g, options); }));
-            return;
+          } else {
+            VolumeReadOptions read;
+            read.vdbGrid = grid;
+            read.frame = frame;
+            read.apron = brickApron(options);
+            volume = readVolume(path, read);
+            range = volume.range();
+            if (!iso && !volume.isLevelSet && !byLabel)
+              throw Error(path + ": no default isovalue for this input; give one with level=");
+            options.isovalue = iso.value_or(0.0);
           }
-          VolumeReadOptions read;
-          read.vdbGrid = grid;
-          read.frame = frame;
-          read.apron = brickApron(options);
-          const SparseVolume volume = readVolume(path, read);
-          range = volume.range();
-          if (!iso && !volume.isLevelSet)
-            throw Error(path + ": no default isovalue for this input; give one with level=");
-          options.isovalue = iso.value_or(0.0);
-          *model = storedModel(buildNaming(
-              [&] { return buildModel(volume.geometry, volume.bricks, options, volume.description); }));
+          std::vector<std::optional<std::int64_t>> labels{options.label};
+          if (allLabels) {
+            labels.clear();
+            for (const std::int64_t l : labelsOf(volume)) labels.emplace_back(l);
+            if (labels.empty()) throw Error("label='all' found no non-zero label");
+          }
+          if (byLabel) options.isovalue = 0;
+          for (std::size_t k = 0; k < labels.size(); ++k) {
+            // Progress over all the models, each an equal share.
+            options.progress = [&, k](double f) {
+              report((static_cast<double>(k) + f) / static_cast<double>(labels.size()));
+            };
+            options.label = labels[k];
+            auto model = std::make_shared<Model>(storedModel(buildNaming(
+                [&] { return buildModel(volume.geometry, volume.bricks, options, volume.description); })));
+            models.emplace_back(labels[k], std::move(model));
+          }
         });
       },
       progress);
-  return py::make_tuple(model, range.first, range.second);
+  py::list out;
+  for (const auto& [l, model] : models)
+    out.append(py::make_tuple(l ? py::object(py::int_(*l)) : py::object(py::none()), model));
+  return py::make_tuple(out, range.first, range.second);
 }
 
 /// The non-empty cell holding index point `p`, or -1: the cell whose lower corner is floor(p) or, for a point
@@ -265,7 +293,7 @@ void bindModel(py::module_& m) {
       py::arg("path"), "reads a .cip model file");
   m.def("_extract", &extract, py::arg("input"), py::arg("level"), py::arg("spacing"), py::arg("origin"),
         py::arg("method"), py::arg("normals"), py::arg("reconstruction"), py::arg("threads"),
-        py::arg("progress"), py::arg("skip_nonfinite"), py::arg("grid"), py::arg("frame"));
+        py::arg("progress"), py::arg("skip_nonfinite"), py::arg("grid"), py::arg("frame"), py::arg("label"));
   m.def(
       "write_mesh",
       [](const std::string& path, const py::array& verts, const py::array& faces, const py::object& normals) {

@@ -9,6 +9,7 @@
 Errors from the library are cip.Error (a ValueError) with the library's message. Long calls release the GIL,
 report progress through `progress(fraction)` and stop cleanly on Ctrl-C (KeyboardInterrupt).
 """
+import numbers
 import os
 import warnings
 
@@ -17,7 +18,7 @@ import numpy as np
 from ._cip import Error, Model, load, write_mesh  # noqa: F401
 from . import _cip
 
-__all__ = ["Error", "Model", "extract", "load", "marching_cubes", "render", "write_mesh"]
+__all__ = ["Error", "Model", "extract", "extract_labels", "load", "marching_cubes", "render", "write_mesh"]
 
 
 def _volume(volume):
@@ -84,7 +85,8 @@ def marching_cubes(volume, level=None, *, spacing=(1.0, 1.0, 1.0), gradient_dire
 
 
 def extract(volume_or_path, level=None, *, spacing=None, origin=None, method="fitted", normals="gradient",
-            reconstruction="auto", threads=0, progress=None, skip_nonfinite=False, grid="", frame=None):
+            reconstruction="auto", threads=0, progress=None, skip_nonfinite=False, grid="", frame=None,
+            label=None):
     """Builds a corner-patch model (cip.Model) from a 3-D array or a volume file, as the `extract` command does.
 
     volume_or_path: a numeric 3-D array (axis order = x, y, z of the model; spacing and origin place it in the
@@ -92,20 +94,44 @@ def extract(volume_or_path, level=None, *, spacing=None, origin=None, method="fi
     `grid` names the VDB grid, `frame` the volume of a 4-D NIfTI, NRRD or MetaImage series, from 0). level: the isovalue (default: the middle of an array's range, 0 for level sets; other files need
     one). method 'fitted' or 'paper', normals 'gradient', 'edge' or 'exact', reconstruction 'auto', 'monotone',
     'central8' or 'mask' as the command's flags (auto takes mask on two-valued data such as segmentation masks). threads: 0 = all. progress: called with the fraction done in [0, 1].
+    label: an integer N makes the volume a label map and the model the surface of the voxels labelled N, as
+    `extract --label N` (no level then; extract_labels gives every label's).
     Runs without the GIL; Ctrl-C stops it (KeyboardInterrupt), as does an exception raised by `progress`.
     NaN or infinite samples at crossed cells raise cip.Error unless skip_nonfinite=True.
     """
+    if label is not None and (isinstance(label, (bool, str)) or not isinstance(label, numbers.Integral)):
+        raise TypeError("label must be an integer, got %r" % (label,))
+    models, lo, hi = _extract_models(volume_or_path, level, spacing, origin, method, normals, reconstruction,
+                                     threads, progress, skip_nonfinite, grid, frame,
+                                     None if label is None else int(label))
+    model = models[0][1]
+    if label is None and not (lo < model.isovalue < hi):
+        warnings.warn("isovalue %g is outside the data range [%g, %g]; the surface is empty" % (model.isovalue, lo, hi))
+    return model
+
+
+def extract_labels(volume_or_path, *, spacing=None, origin=None, normals="gradient", threads=0, progress=None,
+                   skip_nonfinite=False, grid="", frame=None):
+    """One model per non-zero label of a label map (an integer array or file), as `extract --labels`: a dict
+    {label: cip.Model} in increasing label order. Each model is the surface of the voxels with that label;
+    the surfaces of touching labels meet (docs/method.md, "Masks and label maps"). The volume is read once;
+    progress runs over all the labels. Arguments as extract's.
+    """
+    models, _, _ = _extract_models(volume_or_path, None, spacing, origin, "fitted", normals, "auto", threads,
+                                   progress, skip_nonfinite, grid, frame, "all")
+    return {int(l): m for l, m in models}
+
+
+def _extract_models(volume_or_path, level, spacing, origin, method, normals, reconstruction, threads, progress,
+                    skip_nonfinite, grid, frame, label):
     if isinstance(volume_or_path, (str, os.PathLike)):
         volume_or_path = os.fspath(volume_or_path)
         if not os.path.exists(volume_or_path):
             raise FileNotFoundError(2, "No such file", volume_or_path)
     else:
         volume_or_path = _volume(volume_or_path)
-    model, lo, hi = _cip._extract(volume_or_path, level, spacing, origin, method, normals, reconstruction, threads,
-                                  progress, skip_nonfinite, grid, -1 if frame is None else int(frame))
-    if not (lo < model.isovalue < hi):
-        warnings.warn("isovalue %g is outside the data range [%g, %g]; the surface is empty" % (model.isovalue, lo, hi))
-    return model
+    return _cip._extract(volume_or_path, level, spacing, origin, method, normals, reconstruction, threads,
+                         progress, skip_nonfinite, grid, -1 if frame is None else int(frame), label)
 
 
 def render(model, eye=None, look=None, up=None, fov=35.0, size=(800, 600), *, shading="phong", spp=1,

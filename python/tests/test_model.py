@@ -185,3 +185,53 @@ def test_frame_of_a_series_gives_the_commands_model(tmp_path, extract_exe):
     assert cip.extract(str(path), 0.0, frame=0).n_cells != cip.extract(str(path), 0.0, frame=1).n_cells
     with pytest.raises(cip.Error, match="2 frames"):
         cip.extract(str(path), 0.0)
+
+
+def _label_map():
+    """Two touching balls (labels 2 and 5) in background 0, as uint8 (x fastest, as raw files are)."""
+    x, y, z = np.meshgrid(np.arange(28), np.arange(24), np.arange(22), indexing="ij")
+    volume = np.zeros((28, 24, 22), dtype=np.uint8)
+    volume[(x - 9.3) ** 2 + (y - 11.6) ** 2 + (z - 10.8) ** 2 < 6.2 ** 2] = 2
+    volume[(x - 17.9) ** 2 + (y - 12.2) ** 2 + (z - 11.1) ** 2 < 5.7 ** 2] = 5
+    return np.asfortranarray(volume)
+
+
+def test_labels_give_the_commands_models(tmp_path, extract_exe):
+    volume = _label_map()
+    volume.ravel(order="F").tofile(tmp_path / "labels.raw")
+    subprocess.run([extract_exe, str(tmp_path / "labels.raw"), "--dims", "28,24,22", "--type", "uint8", "--labels",
+                    "-o", str(tmp_path / "cli.cip"), "-q"], check=True)
+    models = cip.extract_labels(volume)
+    assert list(models) == [2, 5]
+    for label, model in models.items():
+        # The command's model of the label (the files differ only in the source named in the header), and the
+        # model of one label alone.
+        for other in (cip.load(str(tmp_path / ("cli-label%d.cip" % label))), cip.extract(volume, label=label)):
+            assert model.n_cells == other.n_cells and model.n_vertices == other.n_vertices > 100
+            for ours, theirs in zip(model.patch_mesh(subdiv=2), other.patch_mesh(subdiv=2)):
+                np.testing.assert_array_equal(ours, theirs)
+    # Each label's surface is closed around its own voxels: the volume it encloses is their count (voxel
+    # volume 1), and its marching-cubes vertices lie on edges from a voxel of the label to one without it.
+    for label, model in models.items():
+        verts, faces, _ = model.patch_mesh(subdiv=2)
+        tri = verts[faces]
+        enclosed = abs(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6
+        assert abs(enclosed / np.count_nonzero(volume == label) - 1) < 0.1, (label, enclosed)
+        mc, _, _ = model.mc_mesh()
+        lo, hi = np.floor(mc).astype(int), np.ceil(mc).astype(int)
+        ends = volume[tuple(lo.T)] == label, volume[tuple(hi.T)] == label
+        assert (ends[0] != ends[1]).all()
+
+
+def test_label_errors():
+    volume = _label_map()
+    with pytest.raises(cip.Error, match="level or label"):
+        cip.extract(volume, 1.0, label=2)
+    with pytest.raises(TypeError):
+        cip.extract(volume, label="2")
+    with pytest.raises(cip.Error, match="fitted"):
+        cip.extract(volume, label=2, method="paper")
+    with pytest.raises(cip.Error, match="integer"):
+        cip.extract_labels(volume.astype(np.float32) + 0.5)
+    with pytest.raises(cip.Error, match="no non-zero label"):
+        cip.extract_labels(np.zeros((6, 6, 6), dtype=np.uint8))

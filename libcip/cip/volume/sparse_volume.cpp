@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <string>
+
+#include "cip/core/error.h"
 
 namespace cip {
 
@@ -59,6 +62,21 @@ std::size_t SparseVolume::sampleBytes() const {
   std::size_t n = 0;
   for (const auto& g : grids) n += g.values.size() * sizeof(double);
   return n;
+}
+
+std::vector<std::int64_t> labelsOf(const SparseVolume& volume) {
+  std::vector<std::int64_t> labels;
+  for (const GridBrick& b : volume.bricks) {
+    for (const double v : b.grid->values) {
+      if (!(std::abs(v) < 9e15) || v != std::round(v))
+        throw Error("labels need a label map (integer samples); found " + std::to_string(v));
+      const auto l = static_cast<std::int64_t>(v);
+      if (l != 0 && (labels.empty() || labels.back() != l) &&
+          !std::binary_search(labels.begin(), labels.end(), l))
+        labels.insert(std::upper_bound(labels.begin(), labels.end(), l), l);
+    }
+  }
+  return labels;
 }
 
 }  // namespace cip

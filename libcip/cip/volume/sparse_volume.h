@@ -13,6 +13,7 @@
 /// so derivatives at the owned cells' corners match those of the whole volume. Each cell is owned by at most
 /// one brick.
 #pragma once
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -57,5 +58,10 @@ struct SparseVolume {
 
 /// Wraps a dense grid as a one-brick volume owning every cell (no copy of the values).
 SparseVolume fromDense(DenseGrid grid);
+
+/// The non-zero labels of a label map (every brick sample an integer), in increasing order; throws
+/// cip::Error naming the first sample that is not an integer. What `extract --labels` and the Python
+/// module's `extract_labels` build one model each for.
+std::vector<std::int64_t> labelsOf(const SparseVolume& volume);
 
 }  // namespace cip
