@@ -4,6 +4,7 @@
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
+#include <atomic>
 #include <cmath>
 #include <tuple>
 
@@ -83,7 +84,7 @@ std::optional<CellHit> cellHit(const PatchRayContext& ctx, std::uint32_t cell) {
   double t0 = 0, t1 = 0, s0 = 0, s1 = 0;
   if (!clipRayToCell(origin, direction, ctx.tNear, ctx.tFar, t0, t1) || (ctx.found && t0 > ctx.bestT))
     return std::nullopt;
-  const CornerPatch patch = s.patch(cell);
+  const CornerPatch& patch = s.patch(cell);
   const std::uint64_t mask = s.zeroMask(cell);
   // An open face whose layer of sub-boxes is unmarked keeps the corners' sign (PatchScene::build): no cap.
   std::uint8_t sealed = 0;
@@ -140,7 +141,30 @@ void patchOccluded(const RTCOccludedFunctionNArguments* args) {
   }
 }
 
+/// Numbers the scenes (from 1) so that a cache entry of a destroyed scene never passes for one of a new scene
+/// at the same address.
+std::atomic<std::uint64_t> sceneSerial{0};
+
 }  // namespace
+
+const CornerPatch& PatchScene::patch(std::uint32_t cell) const {
+  // Direct-mapped by cell index: a cell test and the shading of its hit, and the neighbours' sign checks,
+  // ask for the same cells again and again along a row of pixels.
+  struct Entry {
+    std::uint64_t scene = 0;  // serial_; 0 = empty
+    std::uint32_t cell = 0;
+    CornerPatch patch;
+  };
+  constexpr std::uint32_t kEntries = 16;
+  thread_local std::array<Entry, kEntries> cache;
+  Entry& e = cache[cell % kEntries];
+  if (e.scene != serial_ || e.cell != cell) {
+    e.patch = model_.patch(cell);
+    e.scene = serial_;
+    e.cell = cell;
+  }
+  return e.patch;
+}
 
 double meanCurvature(const Vec3& g, const Mat3& h) {
   const double g2 = g.squaredNorm();
@@ -150,6 +174,7 @@ double meanCurvature(const Vec3& g, const Mat3& h) {
 
 PatchScene::PatchScene(const Model& model, const PatchSceneOptions& options)
     : model_(model),
+      serial_(++sceneSerial),
       world_(WorldTransform::of(model.geometry, options.space)),
       gradientToWorld_(world_.indexGradientToWorld(model.geometry.spacing)),
       curvature_(options.curvature),
@@ -228,7 +253,8 @@ int PatchScene::signAcross(std::uint32_t cell, int face, const Vec3& local) cons
   if (neighbour >= 0) {
     Vec3 there = local;
     there[axis] -= step;  // the same point in the neighbour's local coordinates
-    const double value = patch(static_cast<std::uint32_t>(neighbour)).value(there);
+    // Not through the cache: the caller holds the cell's own cached patch, which this could evict.
+    const double value = model_.patch(static_cast<std::size_t>(neighbour)).value(there);
     if (value != 0) return value > 0 ? 1 : -1;
   }
   return ((c.config >> cube::faceVertex(face, 0)) & 1) ? 1 : -1;
@@ -250,7 +276,7 @@ SurfaceHit PatchScene::surfaceAt(const Ray& ray, const Ray& frameRay, double t, 
   }
   const Vec3 local =
       frameToLocal(frameRay.origin, cell) + t * frameRay.direction.cwiseQuotient(model_.geometry.spacing);
-  const CornerPatch p = patch(cell);
+  const CornerPatch& p = patch(cell);
   const PatchDerivatives d = curvature_ ? p.derivatives(local) : p.valueAndGradient(local);
   // local = (frame - origin) / spacing - cell and frame = world_.toFrame(world).
   const Vec3 g = jt * d.gradient;

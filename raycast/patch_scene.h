@@ -41,9 +41,11 @@ class PatchScene : public RenderScene {
 
   // Used by the Embree callbacks.
   const Model& model() const { return model_; }
-  /// The cell's patch, assembled from the model when asked for (a copy of the corners; cheaper than faulting
-  /// in a table of ~0.8 KB per cell, which was 7 % of a 1024x1024 render's whole process).
-  CornerPatch patch(std::uint32_t cell) const { return model_.patch(cell); }
+  /// The cell's patch, assembled from the model when asked for (cheaper than faulting in a table of ~0.8 KB
+  /// per cell, which was 7 % of a 1024x1024 render's whole process), through a small cache per thread: the
+  /// rays of a tile meet the same few cells in turn. Valid until the thread asks for another cell (signAcross
+  /// does not use the cache, so a caller may hold its cell's patch across it).
+  const CornerPatch& patch(std::uint32_t cell) const;
   /// The cell's sub-boxes where its patch may vanish (patch_bounds.h), and those on an open face's layer
   /// where it may have the other sign than the face's corners (a hole closed by a cap, open_face_cap.h).
   std::uint64_t zeroMask(std::uint32_t cell) const { return zeroMasks_[cell]; }
@@ -72,6 +74,7 @@ class PatchScene : public RenderScene {
                        const std::optional<FaceCap>& cap) const;
 
   const Model& model_;
+  std::uint64_t serial_;  ///< distinguishes this scene's entries in the per-thread patch caches
   WorldTransform world_;
   Mat3 gradientToWorld_;  ///< cell-local gradient -> world gradient (world_.indexGradientToWorld)
   bool curvature_ = true;
