@@ -10,6 +10,11 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
+#include "cip/core/vector_clones.h"
 
 namespace cip {
 
@@ -58,6 +63,46 @@ inline void accumulate(const Lanes& x, double shift, double r, const Lanes& qx0,
 #endif
 }
 
+/// One group of terms of patchZeroMask: L at the sub-box centres split per axis (L = constant + x[i] + y[j] +
+/// z[k]), its half-range over a sub-box (radius), and per axis the range [q0, q1] of the squared face planes
+/// on each slab; the four sub-boxes along x are one vector.
+struct MaskTerm {
+  Lanes x, qx0, qx1;
+  std::array<double, kN> y, z, qy0, qy1, qz0, qz1;
+  double constant, radius;
+};
+
+#if defined(CIP_HAS_AVX2_KERNELS)
+/// The bound of every row of four sub-boxes, as the SSE2 loop of patchZeroMask computes it (the same
+/// operations in the same order, four lanes at once): the marked sub-boxes (the bound reaches [-margin,
+/// margin]) and those proven positive.
+CIP_AVX2_KERNEL void maskRowsAvx2(const MaskTerm* terms, int ng, double margin, std::uint64_t& mask,
+                                  std::uint64_t& positive) {
+  const __m256d m = _mm256_set1_pd(margin), negM = _mm256_set1_pd(-margin);
+  for (int k = 0; k < kN; ++k)
+    for (int j = 0; j < kN; ++j) {
+      __m256d lo = _mm256_setzero_pd(), hi = _mm256_setzero_pd();
+      for (int g = 0; g < ng; ++g) {
+        const MaskTerm& t = terms[g];
+        const __m256d s = _mm256_set1_pd(t.constant + t.y[j] + t.z[k]), r = _mm256_set1_pd(t.radius);
+        const __m256d y0 = _mm256_set1_pd(t.qy0[j] * t.qz0[k]), y1 = _mm256_set1_pd(t.qy1[j] * t.qz1[k]);
+        const __m256d c = _mm256_add_pd(_mm256_loadu_pd(t.x.v.data()), s);
+        const __m256d a = _mm256_sub_pd(c, r), b = _mm256_add_pd(c, r);
+        const __m256d q0 = _mm256_mul_pd(_mm256_loadu_pd(t.qx0.v.data()), y0);
+        const __m256d q1 = _mm256_mul_pd(_mm256_loadu_pd(t.qx1.v.data()), y1);
+        lo = _mm256_add_pd(lo, _mm256_min_pd(_mm256_mul_pd(a, q0), _mm256_mul_pd(a, q1)));
+        hi = _mm256_add_pd(hi, _mm256_max_pd(_mm256_mul_pd(b, q0), _mm256_mul_pd(b, q1)));
+      }
+      const int shift = kN * j + kN * kN * k;
+      const auto marked = static_cast<unsigned>(_mm256_movemask_pd(
+          _mm256_and_pd(_mm256_cmp_pd(lo, m, _CMP_LE_OQ), _mm256_cmp_pd(hi, negM, _CMP_GE_OQ))));
+      const auto above = static_cast<unsigned>(_mm256_movemask_pd(_mm256_cmp_pd(lo, m, _CMP_GT_OQ)));
+      mask |= std::uint64_t{marked} << shift;
+      positive |= std::uint64_t{above & ~marked} << shift;
+    }
+}
+#endif
+
 }  // namespace
 
 std::uint64_t patchZeroMask(const CornerPatch& patch, std::uint64_t* positive) {
@@ -105,15 +150,10 @@ std::uint64_t patchZeroMask(const CornerPatch& patch, std::uint64_t* positive) {
   // Per group: L at the sub-box centres split per axis (L = constant + x[i] + y[j] + z[k]), its half-range
   // over a sub-box, and per axis the range of the squared face planes on each slab; the four sub-boxes along
   // x are one vector. `size` bounds sum |L_m| Q_m on the cell; the margin is relative to it.
-  struct Term {
-    Lanes x, qx0, qx1;
-    std::array<double, kN> y, z, qy0, qy1, qz0, qz1;
-    double constant, radius;
-  };
-  std::array<Term, CornerPatch::kMaxTerms> terms;
+  std::array<MaskTerm, CornerPatch::kMaxTerms> terms;
   double size = 0;
   for (int g = 0; g < ng; ++g) {
-    Term& term = terms[g];
+    MaskTerm& term = terms[g];
     const Group& group = groups[g];
     const double g1 = group.gradient.cwiseAbs().sum();
     term.constant = group.constant;
@@ -151,21 +191,29 @@ std::uint64_t patchZeroMask(const CornerPatch& patch, std::uint64_t* positive) {
   }
   const double margin = kMargin * size;
 
-  std::uint64_t mask = 0;
+  std::uint64_t mask = 0, positives = 0;
+#if defined(CIP_HAS_AVX2_KERNELS)
+  if (hasAvx2()) {
+    maskRowsAvx2(terms.data(), ng, margin, mask, positives);
+    if (positive) *positive = positives;
+    return mask;
+  }
+#endif
   for (int k = 0; k < kN; ++k)
     for (int j = 0; j < kN; ++j) {
       Lanes lo{}, hi{};
       for (int g = 0; g < ng; ++g) {
-        const Term& term = terms[g];
+        const MaskTerm& term = terms[g];
         accumulate(term.x, term.constant + term.y[j] + term.z[k], term.radius, term.qx0,
                    term.qy0[j] * term.qz0[k], term.qx1, term.qy1[j] * term.qz1[k], lo, hi);
       }
       for (int i = 0; i < kN; ++i)
         if (lo[i] <= margin && hi[i] >= -margin)
           mask |= std::uint64_t{1} << (i + kN * j + kN * kN * k);
-        else if (positive && lo[i] > margin)
-          *positive |= std::uint64_t{1} << (i + kN * j + kN * kN * k);
+        else if (lo[i] > margin)
+          positives |= std::uint64_t{1} << (i + kN * j + kN * kN * k);
     }
+  if (positive) *positive = positives;
   return mask;
 }
 
