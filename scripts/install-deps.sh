@@ -7,7 +7,7 @@ packages=(cmake ninja-build g++ pkg-config
   libopenvdb-dev libboost-iostreams-dev libembree-dev libopenimageio-dev
   libgtest-dev libgmock-dev libbenchmark-dev libtinygltf-dev libzstd-dev libmeshoptimizer-dev draco
   pybind11-dev python3-pybind11 python3-numpy python3-pytest python3-skimage python3-meshio python3-openimageio
-  python3-nibabel python3-vtk9 python3-pydicom teem-apps "$@")  # independent readers/writers for the reader tests
+  python3-nibabel python3-vtk9 python3-pydicom python3-openvdb teem-apps "$@")  # independent readers/writers for the reader tests
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
