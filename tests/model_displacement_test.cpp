@@ -13,18 +13,14 @@
 
 #include "cip/model/model_builder.h"
 #include "cip/volume/analytic_field.h"
+#include "support/field_model.h"
 
 using namespace cip;
 
 namespace {
 
 Model fieldModel(const std::string& name, int n, NormalMode mode = NormalMode::Exact) {
-  const auto field = makeAnalyticField(name);
-  BuildOptions o;
-  o.isovalue = field->defaultIsovalue();
-  o.normals = mode;
-  o.exactField = field.get();
-  return buildModel(sampleField(*field, n, name), o);
+  return test::fieldModel(name, n, mode);
 }
 
 /// The grid axis of the edge an isovertex lies on: its one coordinate that is not an integer, or -1 when it

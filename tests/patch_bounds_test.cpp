@@ -12,19 +12,14 @@
 #include "cip/model/model_builder.h"
 #include "cip/patch/ray_patch.h"
 #include "cip/volume/analytic_field.h"
+#include "support/field_model.h"
 
 using namespace cip;
 
 namespace {
 
 Model sampledModel(const std::string& field, int n, NormalMode normals = NormalMode::Exact) {
-  auto f = makeAnalyticField(field);
-  DenseGrid grid = sampleField(*f, n, field);
-  BuildOptions options;
-  options.normals = normals;
-  options.exactField = f.get();
-  options.isovalue = f->defaultIsovalue();
-  return buildModel(grid, options);
+  return test::fieldModel(field, n, normals);
 }
 
 /// Models of several shapes and both kinds of normals; `all` adds the larger ones.

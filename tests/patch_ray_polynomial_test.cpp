@@ -14,24 +14,16 @@
 #include "cip/model/model_builder.h"
 #include "cip/patch/ray_patch.h"
 #include "cip/volume/analytic_field.h"
+#include "support/field_model.h"
 
 using namespace cip;
 
 namespace {
 
-Model sampledModel(const std::string& field, int n, NormalMode normals) {
-  auto f = makeAnalyticField(field);
-  DenseGrid grid = sampleField(*f, n, field);
-  BuildOptions options;
-  options.normals = normals;
-  options.exactField = f.get();
-  options.isovalue = f->defaultIsovalue();
-  return buildModel(grid, options);
-}
-
 std::vector<Model> models() {
-  return {sampledModel("sphere", 8, NormalMode::Exact), sampledModel("torus", 12, NormalMode::Exact),
-          sampledModel("gyroid", 12, NormalMode::Gradient), sampledModel("gyroid", 10, NormalMode::Exact)};
+  return {test::fieldModel("sphere", 8, NormalMode::Exact), test::fieldModel("torus", 12, NormalMode::Exact),
+          test::fieldModel("gyroid", 12, NormalMode::Gradient),
+          test::fieldModel("gyroid", 10, NormalMode::Exact)};
 }
 
 /// A ray through the cell: random, along an axis, or in a face plane of the cell.
