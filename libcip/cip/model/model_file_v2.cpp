@@ -1179,11 +1179,15 @@ void refineVertex(const Model& m, const Layout& L, int positionBits, ChunkTopolo
   ch.fine[v][0] = fineT(t, ch.tCode[v], positionBits);
 }
 
-/// Refines the vertices whose crossing parameter a refined code holds exactly and a plain one does not: the
+/// Sets a chunk up for refined vertices, and refines those whose crossing parameter a refined code holds
+/// exactly and a plain one does not: the
 /// vertices of a model read from such a file, so that writing it again keeps them (their normals are checked
 /// as they are coded: refinedNormalCode).
 void refineExactPositions(const Model& m, const Layout& L, int positionBits, ChunkTopology& ch,
                           const ChunkSource& src) {
+  ch.refineBits = kRefineBits;
+  ch.refined.assign(ch.vertexKey.size(), 0);
+  ch.fine.assign(ch.vertexKey.size(), {0, 0, 0});
   const double scale = 1.0 / maxTCode(positionBits);
   for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
     if (src.vertex[v] < 0) continue;
@@ -1282,6 +1286,21 @@ bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Ch
   return added;
 }
 
+/// normalCode, then, where the reader's correction near the minimal angle to the edge moves the normal by
+/// more steps than normalCode searches, a code whose normal codes back to itself, so that a rewrite keeps it.
+void stableNormalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uint8_t flags,
+                      std::int64_t& qu, std::int64_t& qv) {
+  normalCode(pred, n, step, axis, flags, qu, qv);
+  for (int round = 0; round < 8; ++round) {
+    const Vec3 decoded = normalFromCode(pred, qu, qv, step, axis, flags);
+    std::int64_t ru = 0, rv = 0;
+    normalCode(pred, decoded, step, axis, flags, ru, rv);
+    if (normalFromCode(pred, ru, rv, step, axis, flags) == decoded) return;
+    qu = ru;
+    qv = rv;
+  }
+}
+
 /// The code of a vertex's normal: at the header's step, or for a refined vertex 2^-kRefineBits of it. A
 /// vertex whose crossing parameter a plain code holds as well as a refined one (refined = 2) stays refined
 /// only when its normal needs the finer step to be held exactly.
@@ -1299,21 +1318,7 @@ void refinedNormalCode(ChunkTopology& ch, std::size_t v, const Vec3& pred, const
     normalCode(pred, n, fineStep, axis, flags, qu, qv);
     ch.refined[v] = normalFromCode(pred, qu, qv, fineStep, axis, flags) == n ? 1 : 0;
   }
-  if (!ch.isRefined(v)) {
-    normalCode(pred, n, step, axis, flags, qu, qv);
-    return;
-  }
-  // Near the minimal angle to the edge the reader's correction moves a normal by more fine steps than
-  // normalCode searches; a code whose normal codes back to itself is taken, so that a rewrite keeps it.
-  normalCode(pred, n, fineStep, axis, flags, qu, qv);
-  for (int round = 0; round < 8; ++round) {
-    const Vec3 decoded = normalFromCode(pred, qu, qv, fineStep, axis, flags);
-    std::int64_t ru = 0, rv = 0;
-    normalCode(pred, decoded, fineStep, axis, flags, ru, rv);
-    if (normalFromCode(pred, ru, rv, fineStep, axis, flags) == decoded) return;
-    qu = ru;
-    qv = rv;
-  }
+  stableNormalCode(pred, n, ch.isRefined(v) ? fineStep : step, axis, flags, qu, qv);
 }
 
 void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& out) {
@@ -1337,6 +1342,47 @@ void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& ou
     }
     putRaw<std::uint32_t>(out, static_cast<std::uint32_t>(n));
     out.insert(out.end(), z.begin(), z.begin() + static_cast<std::ptrdiff_t>(n));
+  }
+}
+
+/// A chunk's normal codes (a refined vertex's plain code rounded from its finer one, the rest in the refined
+/// vertices' stream), corner coefficients, refined and full-precision vertices.
+void writeVertexStreams(ChunkTopology& ch, const std::vector<std::array<std::int64_t, 2>>& codes,
+                        const Model& sk, std::uint8_t flags) {
+  std::size_t refinedCount = 0;
+  for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+    std::array<std::int64_t, 2> c = codes[ch.vertexBase + v];
+    if (ch.isRefined(v)) {  // the plain code rounded from the finer one, and what is left of it
+      ++refinedCount;
+      for (int k = 0; k < 2; ++k) {
+        const std::int64_t fineCode = c[static_cast<std::size_t>(k)];
+        c[static_cast<std::size_t>(k)] = (fineCode + (std::int64_t(1) << (kRefineBits - 1))) >> kRefineBits;
+        ch.fine[v][static_cast<std::size_t>(k + 1)] =
+            static_cast<std::int32_t>(fineCode - (c[static_cast<std::size_t>(k)] << kRefineBits));
+      }
+    }
+    putVarint(ch.streams[kNormals], zigzag(c[0]));
+    putVarint(ch.streams[kNormals], zigzag(c[1]));
+    if (flags & kWeightsStored) putRaw<double>(ch.streams[kWeights], sk.vertices[ch.vertexBase + v].weight);
+  }
+  if (flags & kRefinementsStored) {
+    std::vector<std::uint8_t>& r = ch.streams[kRefined];
+    r.push_back(static_cast<std::uint8_t>(kRefineBits));
+    putVarint(r, refinedCount);
+    for (std::size_t v = 0, last = 0; v < ch.vertexKey.size(); ++v) {
+      if (!ch.isRefined(v)) continue;
+      putVarint(r, v - last);
+      last = v + 1;
+      for (std::int32_t f : ch.fine[v]) putVarint(r, zigzag(f));
+    }
+  } else {
+    ch.streams.resize(kStreamsBeforeRefinements);
+  }
+  putVarint(ch.streams[kExact], ch.exact.size());
+  for (std::size_t k = 0; k < ch.exact.size(); ++k) {
+    putVarint(ch.streams[kExact], ch.exact[k] - (k ? ch.exact[k - 1] + 1 : 0));
+    putRaw<double>(ch.streams[kExact], ch.exactT[k]);
+    for (int a = 0; a < 3; ++a) putRaw<double>(ch.streams[kExact], ch.exactNormal[k][a]);
   }
 }
 
@@ -1419,11 +1465,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   const bool refine = m.method == PatchMethod::Paper;  // paper models: refined vertices (flag bit 3)
   if (refine)
     tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
-      ChunkTopology& ch = chunks.list[i];
-      ch.refineBits = kRefineBits;
-      ch.refined.assign(ch.vertexKey.size(), 0);
-      ch.fine.assign(ch.vertexKey.size(), {0, 0, 0});
-      refineExactPositions(m, L, q.positionBits, ch, sources[i]);
+      refineExactPositions(m, L, q.positionBits, chunks.list[i], sources[i]);
     });
   placeVertices(chunks, q.positionBits, sk);
   const double nStep = std::ldexp(1.0, -q.normalBits);
@@ -1458,15 +1500,13 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   codeNormals();
   std::vector<double> sidePrediction =
       m.method == PatchMethod::Paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
-  if (refine &&
-      refineIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction, q.positionBits)) {
-    placeVertices(chunks, q.positionBits, sk);  // now with the refined ones
-    codeNormals();
-    sidePrediction = paperSidePrediction(sk, cellFaces, fb);
-  }
-  // Then the cells whose surface the codes would still move too far, until none or three rounds.
+  // Paper models: refine the cells around ill-conditioned faces, then those whose surface the codes would
+  // still move too far (at most three rounds), coding the normals and predicting the sides again after each.
   for (int round = 0;
-       refine && round < 3 && refineMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q);
+       refine && round < 4 &&
+       (round ? refineMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q)
+              : (refineIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction, q.positionBits),
+                 true));
        ++round) {
     placeVertices(chunks, q.positionBits, sk);
     codeNormals();
@@ -1476,41 +1516,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     ChunkTopology& ch = chunks.list[i];
     const ChunkSource& src = sources[i];
-    std::size_t refinedCount = 0;
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      std::array<std::int64_t, 2> c = codes[ch.vertexBase + v];
-      if (ch.isRefined(v)) {  // the plain code rounded from the finer one, and what is left of it
-        ++refinedCount;
-        for (int k = 0; k < 2; ++k) {
-          const std::int64_t fineCode = c[static_cast<std::size_t>(k)];
-          c[static_cast<std::size_t>(k)] = (fineCode + (std::int64_t(1) << (kRefineBits - 1))) >> kRefineBits;
-          ch.fine[v][static_cast<std::size_t>(k + 1)] =
-              static_cast<std::int32_t>(fineCode - (c[static_cast<std::size_t>(k)] << kRefineBits));
-        }
-      }
-      putVarint(ch.streams[kNormals], zigzag(c[0]));
-      putVarint(ch.streams[kNormals], zigzag(c[1]));
-      if (flags & kWeightsStored) putRaw<double>(ch.streams[kWeights], sk.vertices[ch.vertexBase + v].weight);
-    }
-    if (flags & kRefinementsStored) {
-      std::vector<std::uint8_t>& r = ch.streams[kRefined];
-      r.push_back(static_cast<std::uint8_t>(kRefineBits));
-      putVarint(r, refinedCount);
-      for (std::size_t v = 0, last = 0; v < ch.vertexKey.size(); ++v) {
-        if (!ch.isRefined(v)) continue;
-        putVarint(r, v - last);
-        last = v + 1;
-        for (std::int32_t f : ch.fine[v]) putVarint(r, zigzag(f));
-      }
-    } else {
-      ch.streams.resize(kStreamsBeforeRefinements);
-    }
-    putVarint(ch.streams[kExact], ch.exact.size());
-    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
-      putVarint(ch.streams[kExact], ch.exact[k] - (k ? ch.exact[k - 1] + 1 : 0));
-      putRaw<double>(ch.streams[kExact], ch.exactT[k]);
-      for (int a = 0; a < 3; ++a) putRaw<double>(ch.streams[kExact], ch.exactNormal[k][a]);
-    }
+    writeVertexStreams(ch, codes, sk, flags);
     for (std::size_t f = 0; f < src.side.size(); ++f)
       putVarint(ch.streams[kSides], zigzag(coefficientCode(src.side[f] - sidePrediction[ch.faceBase + f],
                                                            q.sideStep, q.sideMantissa)));
