@@ -16,6 +16,7 @@
 #include "cip/core/huge_pages.h"
 #include "cip/model/model_file_header.h"
 #include "cip/patch/patch_coefficients.h"
+#include "cip/patch/surface_shift.h"
 #include "cip/topology/cube_topology.h"
 
 namespace cip {
@@ -38,10 +39,22 @@ enum Stream : int {
   kWeights,      ///< raw f64 corner coefficients per owned vertex (when stored)
   kZeroMasks,    ///< one byte per vertex on a grid point: which of its normal's cross components are zero
   kExact,        ///< vertices kept in full precision: count; per vertex index delta, f64 t, 3 f64 normal
+  kRefined,      ///< (flag bit 3) vertices with more bits: u8 bits, count; per vertex index delta, t, u, v
   kNumStreams
 };
+/// Streams of a chunk in files without refinements (written before they existed, and fitted models).
+constexpr int kStreamsBeforeRefinements = kRefined;
 
-enum Flags : std::uint8_t { kSidesStored = 1, kCentralsStored = 2, kWeightsStored = 4 };
+enum Flags : std::uint8_t {
+  kSidesStored = 1,
+  kCentralsStored = 2,
+  kWeightsStored = 4,
+  kRefinementsStored = 8
+};
+
+/// Extra bits of a refined vertex's crossing parameter and normal code: their steps are 2^-8 of the
+/// header's (docs/model-format.md, "Refined vertices").
+constexpr int kRefineBits = 8;
 
 // ---- small byte helpers -------------------------------------------------------------------------------
 
@@ -260,6 +273,11 @@ struct ChunkTopology {
   std::vector<std::uint32_t> exact;                ///< owned vertices kept in full precision, increasing
   std::vector<double> exactT;
   std::vector<Vec3> exactNormal;
+  int refineBits = 0;                             ///< extra bits of the refined vertices
+  std::vector<std::uint8_t> refined;              ///< per owned vertex (or empty): 1 = refined
+  std::vector<std::array<std::int32_t, 3>> fine;  ///< per owned vertex (or empty): the finer parts of its
+                                                  ///< t code and normal code (u, v), refined vertices only
+  bool isRefined(std::size_t v) const { return !refined.empty() && refined[v]; }
 };
 
 void setupChunk(const Layout& L, const I3& brick, ChunkTopology& ch) {
@@ -633,6 +651,11 @@ constexpr int aroundSlot(int e) {
 
 // ---- decoding a model from its chunks (shared: the writer decodes what it writes) ----------------------
 
+/// A refined vertex's crossing parameter: the code tCode 2^bits + fine in steps of scale 2^-bits.
+double refinedT(std::uint16_t tCode, std::int32_t fine, double scale, int bits) {
+  return static_cast<double>((static_cast<std::int64_t>(tCode) << bits) + fine) * std::ldexp(scale, -bits);
+}
+
 /// The vertices' positions (index coordinates) from their crossing parameters, or kept in full precision.
 void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
   const double scale = 1.0 / maxTCode(positionBits);
@@ -643,7 +666,8 @@ void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
       const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
       IsoVertex& vx = m.vertices[ch.vertexBase + v];
       vx.position = Vec3(static_cast<double>(p[0]), static_cast<double>(p[1]), static_cast<double>(p[2]));
-      vx.position[axis] += ch.tCode[v] * scale;
+      vx.position[axis] +=
+          ch.isRefined(v) ? refinedT(ch.tCode[v], ch.fine[v][0], scale, ch.refineBits) : ch.tCode[v] * scale;
       vx.weight = 1.0;
     }
     for (std::size_t k = 0; k < ch.exact.size(); ++k) {
@@ -806,7 +830,8 @@ void normalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uin
 }
 
 /// Sets every vertex normal from its prediction and the residual code that `codeOf(chunk)` gives for each of
-/// the chunk's vertices (the reader reads it, the writer chooses it), then puts the full-precision normals.
+/// the chunk's vertices (the reader reads it, the writer chooses it; refined vertices' codes are in their
+/// finer steps), then puts the full-precision normals.
 template <class CodeOf>
 void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbours>& around, double step,
                    CodeOf&& codeOf) {
@@ -819,8 +844,9 @@ void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbo
       const std::uint8_t flags = ch.vertexFlags[v];
       const Vec3 pred = predictedNormal(m, around[g], g, axis, (flags >> 5) & 1);
       std::int64_t qu = 0, qv = 0;
-      code(v, pred, qu, qv);
-      m.vertices[g].normal = normalFromCode(pred, qu, qv, step, axis, flags);
+      code(v, pred, qu, qv);  // refined vertices: the code in steps 2^-refineBits as fine
+      m.vertices[g].normal = normalFromCode(
+          pred, qu, qv, ch.isRefined(v) ? std::ldexp(step, -ch.refineBits) : step, axis, flags);
     }
     for (std::size_t k = 0; k < ch.exact.size(); ++k)
       m.vertices[ch.vertexBase + ch.exact[k]].normal = ch.exactNormal[k];
@@ -1135,12 +1161,54 @@ void codeChunkItems(const Model& m, const Layout& L, const ModelFileV2Options& q
   }
 }
 
+/// The fine part of a refined vertex's crossing parameter t (in [0, 1]) against its code tCode.
+std::int32_t fineT(double t, std::uint16_t tCode, int positionBits) {
+  const double units = std::ldexp(static_cast<double>(maxTCode(positionBits)), kRefineBits);
+  const auto q = std::clamp<std::int64_t>(std::llround(t * units), 0, static_cast<std::int64_t>(units));
+  return static_cast<std::int32_t>(q - (static_cast<std::int64_t>(tCode) << kRefineBits));
+}
+
+/// Marks a vertex refined, with the fine part of its crossing parameter from the model's.
+void refineVertex(const Model& m, const Layout& L, int positionBits, ChunkTopology& ch,
+                  const ChunkSource& src, std::size_t v) {
+  ch.refined[v] = 1;
+  if (src.vertex[v] < 0) return;
+  const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+  const double t = m.vertices[static_cast<std::size_t>(src.vertex[v])].position[axis] -
+                   static_cast<double>(keyPoint(ch, L.B, ch.vertexKey[v] / 3)[axis]);
+  ch.fine[v][0] = fineT(t, ch.tCode[v], positionBits);
+}
+
+/// Sets a chunk up for refined vertices, and refines those whose crossing parameter a refined code holds
+/// exactly and a plain one does not: the
+/// vertices of a model read from such a file, so that writing it again keeps them (their normals are checked
+/// as they are coded: refinedNormalCode).
+void refineExactPositions(const Model& m, const Layout& L, int positionBits, ChunkTopology& ch,
+                          const ChunkSource& src) {
+  ch.refineBits = kRefineBits;
+  ch.refined.assign(ch.vertexKey.size(), 0);
+  ch.fine.assign(ch.vertexKey.size(), {0, 0, 0});
+  const double scale = 1.0 / maxTCode(positionBits);
+  for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+    if (src.vertex[v] < 0) continue;
+    const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+    const double x = m.vertices[static_cast<std::size_t>(src.vertex[v])].position[axis],
+                 p = static_cast<double>(keyPoint(ch, L.B, ch.vertexKey[v] / 3)[axis]);
+    const std::int32_t f = fineT(x - p, ch.tCode[v], positionBits);
+    // Compared as placeVertices places them: the grid point plus t, rounded.
+    if (p + refinedT(ch.tCode[v], f, scale, kRefineBits) != x) continue;
+    ch.fine[v][0] = f;
+    ch.refined[v] = p + ch.tCode[v] * scale == x ? 2 : 1;  // 2: plain codes hold t too; the normal decides
+  }
+}
+
 /// The paper's side coefficients are recomputed from the stored corners; where a face's coefficient is
-/// ill-conditioned (the one from quantised corners differs from the built one by more than 1 %), the corners
-/// of the cells around that face are kept in full precision instead, so that the recomputed coefficients and
-/// the cells' corner planes are the built ones. Returns whether any vertex is kept.
-bool keepIllConditionedCells(const Model& m, const Model& sk, const CellFaces& cellFaces, Chunks& chunks,
-                             const std::vector<ChunkSource>& sources, const std::vector<double>& prediction) {
+/// ill-conditioned (the one from quantised corners differs from the built one by more than 1 + |w|), the
+/// corners of the cells around that face are refined, so that the recomputed coefficients and the cells'
+/// corner planes are close to the built ones. Returns whether any vertex was newly refined.
+bool refineIllConditionedCells(const Model& m, const Model& sk, const CellFaces& cellFaces, Chunks& chunks,
+                               const std::vector<ChunkSource>& sources, const std::vector<double>& prediction,
+                               int positionBits) {
   std::vector<std::uint8_t> badFace(prediction.size(), 0);
   for (std::size_t i = 0; i < chunks.list.size(); ++i)
     for (std::size_t f = 0; f < sources[i].side.size(); ++f) {
@@ -1160,19 +1228,97 @@ bool keepIllConditionedCells(const Model& m, const Model& sk, const CellFaces& c
     any = true;
   }
   if (!any) return false;
+  bool added = false;
   for (std::size_t i = 0; i < chunks.list.size(); ++i) {
     ChunkTopology& ch = chunks.list[i];
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      if (!keep[ch.vertexBase + v] || sources[i].vertex[v] < 0) continue;
-      const IsoVertex& mv = m.vertices[static_cast<std::size_t>(sources[i].vertex[v])];
-      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-      ch.exact.push_back(static_cast<std::uint32_t>(v));
-      ch.exactT.push_back(mv.position[axis] -
-                          static_cast<double>(keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3)[axis]));
-      ch.exactNormal.push_back(mv.normal);
-    }
+    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v)
+      if (keep[ch.vertexBase + v] && ch.refined[v] != 1) {
+        refineVertex(m, chunks.L, positionBits, ch, sources[i], v);
+        added = true;
+      }
   }
-  return true;
+  return added;
+}
+
+/// How far (voxels, estimated: surfaceShiftEstimate) a cell's stored surface may move before its corners are
+/// refined: a fifth of the bound docs/model-format.md states, since the estimate samples the cell sparsely.
+constexpr double kShiftTarget = 0.002;
+
+/// Refines the corners of the cells whose stored surface the codes chosen so far would move by more than
+/// kShiftTarget. `sk` holds the stored corners; its side and central coefficients are set here to what a
+/// reader will decode. Returns whether any vertex was newly refined.
+bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Chunks& chunks,
+                       const std::vector<ChunkSource>& sources, const std::vector<double>& prediction,
+                       const ModelFileV2Options& q) {
+  std::vector<double> side(prediction.size(), 0.0);
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    const std::uint64_t base = chunks.list[i].faceBase;
+    for (std::size_t f = 0; f < sources[i].side.size(); ++f) {
+      const double p = prediction[base + f];
+      side[base + f] =
+          p + coefficientValue(coefficientCode(sources[i].side[f] - p, q.sideStep, q.sideMantissa),
+                               q.sideStep, q.sideMantissa);
+    }
+  });
+  std::vector<std::uint8_t> moving(sk.cells.size(), 0);
+  tbb::parallel_for(std::size_t(0), sk.cells.size(), [&](std::size_t c) {
+    ModelCell& cell = sk.cells[c];
+    for (std::size_t f = 0; f < 6; ++f)
+      cell.faceCoefficient[f] = cellFaces[c][f] == kNone ? 0.0 : side[cellFaces[c][f]];
+    cell.central = coefficientValue(coefficientCode(m.cells[c].central, q.centralStep, q.centralMantissa),
+                                    q.centralStep, q.centralMantissa);
+    moving[c] = surfaceShiftEstimate(m.patch(c), sk.patch(c)) > kShiftTarget;
+  });
+  std::vector<std::uint8_t> keep(sk.vertices.size(), 0);
+  for (std::size_t c = 0; c < sk.cells.size(); ++c)
+    if (moving[c])
+      for (int k = 0; k < sk.cells[c].numCorners(); ++k)
+        keep[sk.corners[sk.cells[c].firstCorner + static_cast<std::uint32_t>(k)]] = 1;
+  bool added = false;
+  for (std::size_t i = 0; i < chunks.list.size(); ++i) {
+    ChunkTopology& ch = chunks.list[i];
+    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v)
+      if (keep[ch.vertexBase + v] && ch.refined[v] != 1) {
+        refineVertex(m, chunks.L, q.positionBits, ch, sources[i], v);
+        added = true;
+      }
+  }
+  return added;
+}
+
+/// normalCode, then, where the reader's correction near the minimal angle to the edge moves the normal by
+/// more steps than normalCode searches, a code whose normal codes back to itself, so that a rewrite keeps it.
+void stableNormalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uint8_t flags,
+                      std::int64_t& qu, std::int64_t& qv) {
+  normalCode(pred, n, step, axis, flags, qu, qv);
+  for (int round = 0; round < 8; ++round) {
+    const Vec3 decoded = normalFromCode(pred, qu, qv, step, axis, flags);
+    std::int64_t ru = 0, rv = 0;
+    normalCode(pred, decoded, step, axis, flags, ru, rv);
+    if (normalFromCode(pred, ru, rv, step, axis, flags) == decoded) return;
+    qu = ru;
+    qv = rv;
+  }
+}
+
+/// The code of a vertex's normal: at the header's step, or for a refined vertex 2^-kRefineBits of it. A
+/// vertex whose crossing parameter a plain code holds as well as a refined one (refined = 2) stays refined
+/// only when its normal needs the finer step to be held exactly.
+void refinedNormalCode(ChunkTopology& ch, std::size_t v, const Vec3& pred, const Vec3& n, double step,
+                       std::int64_t& qu, std::int64_t& qv) {
+  const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+  const std::uint8_t flags = ch.vertexFlags[v];
+  const double fineStep = std::ldexp(step, -kRefineBits);
+  if (ch.isRefined(v) && ch.refined[v] == 2) {
+    normalCode(pred, n, step, axis, flags, qu, qv);
+    if (normalFromCode(pred, qu, qv, step, axis, flags) == n) {
+      ch.refined[v] = 0;
+      return;
+    }
+    normalCode(pred, n, fineStep, axis, flags, qu, qv);
+    ch.refined[v] = normalFromCode(pred, qu, qv, fineStep, axis, flags) == n ? 1 : 0;
+  }
+  stableNormalCode(pred, n, ch.isRefined(v) ? fineStep : step, axis, flags, qu, qv);
 }
 
 void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& out) {
@@ -1196,6 +1342,47 @@ void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& ou
     }
     putRaw<std::uint32_t>(out, static_cast<std::uint32_t>(n));
     out.insert(out.end(), z.begin(), z.begin() + static_cast<std::ptrdiff_t>(n));
+  }
+}
+
+/// A chunk's normal codes (a refined vertex's plain code rounded from its finer one, the rest in the refined
+/// vertices' stream), corner coefficients, refined and full-precision vertices.
+void writeVertexStreams(ChunkTopology& ch, const std::vector<std::array<std::int64_t, 2>>& codes,
+                        const Model& sk, std::uint8_t flags) {
+  std::size_t refinedCount = 0;
+  for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+    std::array<std::int64_t, 2> c = codes[ch.vertexBase + v];
+    if (ch.isRefined(v)) {  // the plain code rounded from the finer one, and what is left of it
+      ++refinedCount;
+      for (int k = 0; k < 2; ++k) {
+        const std::int64_t fineCode = c[static_cast<std::size_t>(k)];
+        c[static_cast<std::size_t>(k)] = (fineCode + (std::int64_t(1) << (kRefineBits - 1))) >> kRefineBits;
+        ch.fine[v][static_cast<std::size_t>(k + 1)] =
+            static_cast<std::int32_t>(fineCode - (c[static_cast<std::size_t>(k)] << kRefineBits));
+      }
+    }
+    putVarint(ch.streams[kNormals], zigzag(c[0]));
+    putVarint(ch.streams[kNormals], zigzag(c[1]));
+    if (flags & kWeightsStored) putRaw<double>(ch.streams[kWeights], sk.vertices[ch.vertexBase + v].weight);
+  }
+  if (flags & kRefinementsStored) {
+    std::vector<std::uint8_t>& r = ch.streams[kRefined];
+    r.push_back(static_cast<std::uint8_t>(kRefineBits));
+    putVarint(r, refinedCount);
+    for (std::size_t v = 0, last = 0; v < ch.vertexKey.size(); ++v) {
+      if (!ch.isRefined(v)) continue;
+      putVarint(r, v - last);
+      last = v + 1;
+      for (std::int32_t f : ch.fine[v]) putVarint(r, zigzag(f));
+    }
+  } else {
+    ch.streams.resize(kStreamsBeforeRefinements);
+  }
+  putVarint(ch.streams[kExact], ch.exact.size());
+  for (std::size_t k = 0; k < ch.exact.size(); ++k) {
+    putVarint(ch.streams[kExact], ch.exact[k] - (k ? ch.exact[k - 1] + 1 : 0));
+    putRaw<double>(ch.streams[kExact], ch.exactT[k]);
+    for (int a = 0; a < 3; ++a) putRaw<double>(ch.streams[kExact], ch.exactNormal[k][a]);
   }
 }
 
@@ -1275,9 +1462,14 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
     tbb::parallel_for(std::size_t(0), chunks.list.size(),
                       [&](std::size_t i) { codeChunkItems(m, L, q, use, chunks.list[i], sources[i], name); });
   }
+  const bool refine = m.method == PatchMethod::Paper;  // paper models: refined vertices (flag bit 3)
+  if (refine)
+    tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+      refineExactPositions(m, L, q.positionBits, chunks.list[i], sources[i]);
+    });
   placeVertices(chunks, q.positionBits, sk);
   const double nStep = std::ldexp(1.0, -q.normalBits);
-  std::uint8_t flags = kSidesStored;
+  std::uint8_t flags = refine ? kSidesStored | kRefinementsStored : kSidesStored;
   for (const ModelCell& c : m.cells)
     if (c.central != 0) flags |= kCentralsStored;
   if (m.method == PatchMethod::Fitted) flags |= kCentralsStored;
@@ -1293,8 +1485,11 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
         std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
         if (mvi >= 0) {
           const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
-          normalCode(pred, mv.normal, nStep, static_cast<int>(ch.vertexKey[v] % 3), ch.vertexFlags[v], c[0],
-                     c[1]);
+          if (refine)
+            refinedNormalCode(chunks.list[i], v, pred, mv.normal, nStep, c[0], c[1]);
+          else
+            normalCode(pred, mv.normal, nStep, static_cast<int>(ch.vertexKey[v] % 3), ch.vertexFlags[v], c[0],
+                       c[1]);
           sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
         }
         qu = c[0];
@@ -1305,9 +1500,15 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   codeNormals();
   std::vector<double> sidePrediction =
       m.method == PatchMethod::Paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
-  if (m.method == PatchMethod::Paper &&
-      keepIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction)) {
-    placeVertices(chunks, q.positionBits, sk);  // now with the full-precision ones
+  // Paper models: refine the cells around ill-conditioned faces, then those whose surface the codes would
+  // still move too far (at most three rounds), coding the normals and predicting the sides again after each.
+  for (int round = 0;
+       refine && round < 4 &&
+       (round ? refineMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q)
+              : (refineIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction, q.positionBits),
+                 true));
+       ++round) {
+    placeVertices(chunks, q.positionBits, sk);
     codeNormals();
     sidePrediction = paperSidePrediction(sk, cellFaces, fb);
   }
@@ -1315,17 +1516,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     ChunkTopology& ch = chunks.list[i];
     const ChunkSource& src = sources[i];
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      putVarint(ch.streams[kNormals], zigzag(codes[ch.vertexBase + v][0]));
-      putVarint(ch.streams[kNormals], zigzag(codes[ch.vertexBase + v][1]));
-      if (flags & kWeightsStored) putRaw<double>(ch.streams[kWeights], sk.vertices[ch.vertexBase + v].weight);
-    }
-    putVarint(ch.streams[kExact], ch.exact.size());
-    for (std::size_t k = 0; k < ch.exact.size(); ++k) {
-      putVarint(ch.streams[kExact], ch.exact[k] - (k ? ch.exact[k - 1] + 1 : 0));
-      putRaw<double>(ch.streams[kExact], ch.exactT[k]);
-      for (int a = 0; a < 3; ++a) putRaw<double>(ch.streams[kExact], ch.exactNormal[k][a]);
-    }
+    writeVertexStreams(ch, codes, sk, flags);
     for (std::size_t f = 0; f < src.side.size(); ++f)
       putVarint(ch.streams[kSides], zigzag(coefficientCode(src.side[f] - sidePrediction[ch.faceBase + f],
                                                            q.sideStep, q.sideMantissa)));
@@ -1455,7 +1646,7 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
   r.skip(12);  // magic and version, checked by the caller
   FileHeader h;
   h.flags = readModelHeader(r, m);
-  if (h.flags > 7) r.fail("unknown flags");
+  if (h.flags > 15) r.fail("unknown flags");
   // Point and brick keys are 64-bit: at most 2^62 points (each dimension is at most 2^31).
   const std::int64_t plane = m.geometry.dims[0] * m.geometry.dims[1];
   if (m.geometry.dims[2] > (std::int64_t(1) << 62) / plane)
@@ -1538,6 +1729,34 @@ void readCoefficients(ChunkTopology& ch, const FileHeader& h, const std::string&
   cr.expectEnd();
 }
 
+/// A chunk's refined vertices: which, and the finer parts of their crossing parameter and normal codes.
+void readRefinements(ChunkTopology& ch, int positionBits, const std::string& where) {
+  StreamReader rr(&ch.streams[kRefined], where + ": refined vertices");
+  ch.refineBits = rr.byte();
+  if (ch.refineBits < 1 || ch.refineBits > 20) rr.fail("has refinement bits out of range");
+  const std::uint64_t n = rr.varint();
+  if (n > ch.vertexKey.size()) rr.fail("lists more vertices than the chunk has");
+  ch.refined.assign(ch.vertexKey.size(), 0);
+  ch.fine.assign(ch.vertexKey.size(), {0, 0, 0});
+  const std::int64_t half = std::int64_t(1) << (ch.refineBits - 1),
+                     tUnits = static_cast<std::int64_t>(maxTCode(positionBits)) << ch.refineBits;
+  std::uint64_t next = 0;
+  for (std::uint64_t k = 0; k < n; ++k) {
+    next += rr.varint();
+    if (next >= ch.vertexKey.size()) rr.fail("lists a vertex the chunk does not have");
+    const auto v = static_cast<std::size_t>(next++);
+    ch.refined[v] = 1;
+    for (std::int32_t& f : ch.fine[v]) {
+      const std::int64_t x = rr.svarint();
+      if (x < -2 * half || x > 2 * half) rr.fail("has a finer code out of range");
+      f = static_cast<std::int32_t>(x);
+    }
+    const std::int64_t t = (static_cast<std::int64_t>(ch.tCode[v]) << ch.refineBits) + ch.fine[v][0];
+    if (t < 0 || t > tUnits) rr.fail("has a crossing parameter outside its edge");
+  }
+  rr.expectEnd();
+}
+
 /// Phase 1 of reading a chunk, independent of all others: checksum, streams, signs, cells, owned vertices and
 /// faces.
 void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, std::size_t i,
@@ -1561,11 +1780,13 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
                                         10 * C,
                                         8 * V,
                                         V,
-                                        10 + 42 * V};
-  ch.streams.resize(kNumStreams);
+                                        10 + 42 * V,
+                                        11 + 31 * V};
+  const int streams = (h.flags & kRefinementsStored) ? kNumStreams : kStreamsBeforeRefinements;
+  ch.streams.resize(static_cast<std::size_t>(streams));
   const std::unique_ptr<ZSTD_DCtx, std::size_t (*)(ZSTD_DCtx*)> context(ZSTD_createDCtx(), ZSTD_freeDCtx);
   if (!context) throw Error(where + ": cannot create a zstd context");
-  for (int s = 0; s < kNumStreams; ++s)
+  for (int s = 0; s < streams; ++s)
     ch.streams[s] = decompress(context.get(), at, end, cap[s], where + ", stream " + std::to_string(s) + ",");
   if (at != end) throw Error(where + ": bytes after its last stream");
   StreamReader rows(&ch.streams[kRows], where + ": sign rows");
@@ -1653,6 +1874,7 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
     ch.exactNormal.push_back(n);
   }
   xr.expectEnd();
+  if (h.flags & kRefinementsStored) readRefinements(ch, h.q.positionBits, where);
   readCoefficients(ch, h, where);
 }
 
@@ -1670,6 +1892,10 @@ class NormalCodeReader {
     qu = normals_.svarint();
     qv = normals_.svarint();
     if (std::abs(qu) > limit_ || std::abs(qv) > limit_) normals_.fail("has a normal code out of range");
+    if (ch_.isRefined(v)) {  // the code in the finer steps
+      qu = qu * (std::int64_t(1) << ch_.refineBits) + ch_.fine[v][1];
+      qv = qv * (std::int64_t(1) << ch_.refineBits) + ch_.fine[v][2];
+    }
     if (weights_) {
       double& w = m_.vertices[ch_.vertexBase + v].weight;
       w = corner_.f64();
@@ -1718,7 +1944,8 @@ std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::v
                                                   "central coefficients",
                                                   "corner coefficients",
                                                   "zero normal components",
-                                                  "full-precision vertices"};
+                                                  "full-precision vertices",
+                                                  "refined vertices"};
   Model m;
   Layout L;
   const FileHeader h = readHeader(file.data(), file.size(), "model", m, L);
@@ -1727,7 +1954,7 @@ std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::v
   std::size_t framing = 0;
   for (const DirectoryEntry& e : h.dir) {
     std::size_t at = e.offset;
-    for (int s = 0; s < kNumStreams; ++s) {
+    for (int s = 0; s < ((h.flags & kRefinementsStored) ? kNumStreams : kStreamsBeforeRefinements); ++s) {
       std::uint32_t stored;
       if (at + 8 > e.offset + e.bytes)
         throw Error("model: damaged model file: a chunk's streams are truncated");

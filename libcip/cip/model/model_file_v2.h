@@ -26,7 +26,8 @@ struct ModelFileV2Options {
   int zstdLevel = 9;
 
   /// The defaults for a model built with `method`: the paper's coefficients are recomputed from the stored
-  /// corners and are more sensitive to them, so its normals get one more bit.
+  /// corners and are more sensitive to them, so its normals get one more bit (and the vertices of cells that
+  /// amplify rounding 8 more: docs/model-format.md, "Refined vertices").
   static ModelFileV2Options forMethod(PatchMethod method);  ///< 1..19
 };
 
@@ -34,8 +35,8 @@ std::vector<std::uint8_t> serializeModelV2(const Model& model, const ModelFileV2
 /// Bytes of one kind of data summed over the chunks of a version 2 file, as stored (after compression), in
 /// file order: sign rows, cell exceptions, face pairings, positions (low bytes), positions (high bytes),
 /// normals, side coefficients, central coefficients, corner coefficients, zero normal components,
-/// full-precision vertices; then "header" (header and directory) and "framing" (stream sizes). For reports
-/// of where a file's bytes go.
+/// full-precision vertices, refined vertices (0 in files without them); then "header" (header and directory)
+/// and "framing" (stream sizes). For reports of where a file's bytes go.
 std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::vector<std::uint8_t>& file);
 
 /// Parses a version 2 file whose magic and version the caller has checked (`data` is the whole file).
