@@ -1,5 +1,3 @@
-#include "cip/model/model_file_v2.h"
-
 #include <tbb/parallel_for.h>
 #include <zstd.h>
 
@@ -15,6 +13,7 @@
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
 #include "cip/model/model_file_header.h"
+#include "cip/model/model_file_v2.h"
 #include "cip/patch/patch_coefficients.h"
 #include "cip/topology/cube_topology.h"
 
@@ -492,133 +491,101 @@ std::uint64_t placeCellRows(Chunks& chunks, std::uint64_t& corners) {
   return cells;
 }
 
-/// One owned point row's entries (vertices or faces) in the chunk that owns it, walked with increasing x.
-class RowCursor {
+/// The vertices and faces around a chunk's cells, looked up by point: for two point layers (z = lz and
+/// lz + 1 of the chunk's cells), per point (x, y) of the cells' box and axis, the model-wide index of the
+/// vertex on the crossed edge from there, and the face across it (the owning chunk's slot, see owner(), in
+/// the top byte, its index there below), or kNone. Each layer is filled once from the point rows of the
+/// chunks that own them (this one, or those above it), so a cell's items are one load each.
+class LinkLayers {
  public:
-  void reset(const ChunkTopology* owner, const std::vector<std::uint32_t>& keys,
-             const std::vector<std::uint32_t>& rowStart, std::int64_t B, std::int64_t ly, std::int64_t lz) {
-    if (!owner) {
-      at_ = end_ = 0;
-      return;
+  LinkLayers(const Chunks& chunks, std::size_t index) : ch_(chunks.list[index]), B_(chunks.L.B) {
+    for (int d = 0; d < 8; ++d)
+      nb_[d] =
+          d ? chunks.find({ch_.brick[0] + (d & 1), ch_.brick[1] + ((d >> 1) & 1), ch_.brick[2] + (d >> 2)})
+            : &ch_;
+    P_ = static_cast<std::size_t>(ch_.cellCount[0] + 1);
+    S_ = 3 * P_ * static_cast<std::size_t>(ch_.cellCount[1] + 1);
+    vertex_.assign(2 * S_, kNone);
+    face_.assign(2 * S_, kNone);
+  }
+  /// The chunk that owns an item whose face value is `value`.
+  const ChunkTopology* owner(std::uint32_t value) const { return nb_[value >> 24]; }
+  /// Makes point layers lz and lz + 1 present, and sets the bases of each cell edge's and face's lookup.
+  void moveTo(std::int64_t lz) {
+    for (std::int64_t pz = lz; pz <= lz + 1; ++pz) {
+      const auto slot = static_cast<std::size_t>(pz & 1);
+      if (held_[slot] == pz) continue;
+      if (held_[slot] >= 0) fill(slot, held_[slot], true);
+      fill(slot, pz, false);
+      held_[slot] = pz;
     }
-    const auto row = static_cast<std::size_t>(ly + (B + 1) * lz);
-    key_ = keys.data();
-    at_ = rowStart[row];
-    end_ = rowStart[row + 1];
-    base_ = static_cast<std::uint32_t>(3 * (B + 1) * (ly + (B + 1) * lz));
+    for (int e = 0; e < 12; ++e) {
+      const int axis = cube::edgeAxis(e), a = e & 1, b = (e >> 1) & 1;
+      const auto o = cube::otherAxes(axis);
+      int c[3] = {0, 0, 0};
+      c[o[0]] = a;
+      c[o[1]] = b;
+      edge_[e] = vertex_.data() + offset(lz, c, axis);
+    }
+    for (int f = 0; f < 6; ++f) {
+      int c[3] = {0, 0, 0};
+      c[f / 2] = f & 1;
+      faceAt_[f] = face_.data() + offset(lz, c, f / 2);
+    }
   }
-  /// The owner's index of each entry of points lx .. lx + count / 3 - 1, at out[3 (x - lx) + axis].
-  void gather(std::uint32_t lx, std::uint32_t count, std::uint32_t* out) {
-    const std::uint32_t first = base_ + 3 * lx;
-    while (at_ < end_ && key_[at_] < first) ++at_;
-    for (std::uint32_t j = at_; j < end_ && key_[j] < first + count; ++j) out[key_[j] - first] = j;
+  /// The table position of cell (lx, ly) of the current layer.
+  std::size_t cell(std::int64_t lx, std::int64_t ly) const {
+    return 3 * (P_ * static_cast<std::size_t>(ly) + static_cast<std::size_t>(lx));
   }
+  std::uint32_t vertexOn(int e, std::size_t at) const { return edge_[e][at]; }
+  std::uint32_t faceOn(int f, std::size_t at) const { return faceAt_[f][at]; }
 
  private:
-  const std::uint32_t* key_ = nullptr;
-  std::uint32_t at_ = 0, end_ = 0, base_ = 0;
-};
-
-/// Where an item at a cell's point offset (dx, dy, dz) along `axis` sits in the lookup tables of a cell:
-/// table (dy + 2 dz), entry 3 dx + axis.
-constexpr int itemSlot(int dx, int dy, int dz, int axis) {
-  return 6 * (dy + 2 * dz) + 3 * dx + axis;
-}
-constexpr int edgeSlot(int e) {
-  const int axis = cube::edgeAxis(e), a = e & 1, b = (e >> 1) & 1;
-  const auto o = cube::otherAxes(axis);
-  int c[3] = {0, 0, 0};
-  c[o[0]] = a;
-  c[o[1]] = b;
-  return itemSlot(c[0], c[1], c[2], axis);
-}
-constexpr int faceSlot(int f) {
-  int c[3] = {0, 0, 0};
-  c[f / 2] = f & 1;
-  return itemSlot(c[0], c[1], c[2], f / 2);
-}
-
-/// The vertices and faces of one cell: for every point of the cell and axis, the owning chunk's index of the
-/// crossed edge and face from there (kNone where there is none).
-struct CellItems {
-  std::array<std::uint32_t, 24> vertex, face;
-  std::array<const ChunkTopology*, 8> owner;  ///< per table and dx
-  /// Model-wide index of the vertex on cell edge e, or kNone.
-  std::uint32_t vertexOn(int e) const {
-    static constexpr std::array<std::uint8_t, 12> kSlot = [] {
-      std::array<std::uint8_t, 12> t{};
-      for (int i = 0; i < 12; ++i) t[static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(edgeSlot(i));
-      return t;
-    }();
-    const int s = kSlot[static_cast<std::size_t>(e)];
-    const std::uint32_t v = vertex[static_cast<std::size_t>(s)];
-    return v == kNone ? kNone
-                      : static_cast<std::uint32_t>(owner[static_cast<std::size_t>(s / 3)]->vertexBase + v);
+  std::size_t offset(std::int64_t lz, const int* c, int axis) const {
+    return S_ * static_cast<std::size_t>((lz + c[2]) & 1) + 3 * (P_ * static_cast<std::size_t>(c[1]) + c[0]) +
+           static_cast<std::size_t>(axis);
   }
-  /// The chunk that owns cell face f, and its index there (kNone: none).
-  std::pair<const ChunkTopology*, std::uint32_t> faceOn(int f) const {
-    static constexpr std::array<std::uint8_t, 6> kSlot = {faceSlot(0), faceSlot(1), faceSlot(2),
-                                                          faceSlot(3), faceSlot(4), faceSlot(5)};
-    const int s = kSlot[static_cast<std::size_t>(f)];
-    return {owner[static_cast<std::size_t>(s / 3)], face[static_cast<std::size_t>(s)]};
-  }
-};
-
-/// Calls visit(j, cell, items) for every cell j of chunk `index` in order, with the vertices and faces around
-/// it looked up in the chunks that own them (this one, or those above it): a cursor per point row walks
-/// each row's entries once.
-template <class Visit>
-void linkCells(const Chunks& chunks, std::size_t index, Visit&& visit) {
-  const ChunkTopology& ch = chunks.list[index];
-  const std::int64_t B = chunks.L.B;
-  const ChunkTopology* nb[2][2][2];
-  for (int d = 0; d < 8; ++d)
-    nb[d & 1][(d >> 1) & 1][d >> 2] =
-        d ? chunks.find({ch.brick[0] + (d & 1), ch.brick[1] + ((d >> 1) & 1), ch.brick[2] + (d >> 2)}) : &ch;
-  RowCursor vMain[4], fMain[4], vNext[4], fNext[4];
-  const ChunkTopology* rowOwner[4][2] = {};
-  std::uint32_t currentRow = kNone;
-  CellItems items;
-  for (std::size_t j = 0; j < ch.cells.size(); ++j) {
-    const std::uint32_t local = ch.cells[j];
-    const auto lx = static_cast<std::uint32_t>(cellX(local));
-    const std::int64_t ly = cellY(local), lz = cellZ(local);
-    if (local >> 8 != currentRow) {
-      currentRow = local >> 8;
-      for (int d = 0; d < 4; ++d) {
-        const int dy = d & 1, dz = d >> 1;
-        const bool upY = dy && ly + 1 >= ch.ownedCount[1], upZ = dz && lz + 1 >= ch.ownedCount[2];
-        const std::int64_t py = upY ? 0 : ly + dy, pz = upZ ? 0 : lz + dz;
-        rowOwner[d][0] = nb[0][upY][upZ];
-        rowOwner[d][1] = nb[1][upY][upZ];
-        for (int dx = 0; dx < 2; ++dx) {
-          const ChunkTopology* o = rowOwner[d][dx];
-          RowCursor& v = dx ? vNext[d] : vMain[d];
-          RowCursor& f = dx ? fNext[d] : fMain[d];
-          if (o) v.reset(o, o->vertexKey, o->vertexRow, B, py, pz);
-          if (o) f.reset(o, o->faceKey, o->faceRow, B, py, pz);
-          if (!o) v.reset(nullptr, {}, {}, B, 0, 0), f.reset(nullptr, {}, {}, B, 0, 0);
+  /// Writes (or clears) point layer pz into table slot `slot`.
+  void fill(std::size_t slot, std::int64_t pz, bool clear) {
+    const bool zUp = pz >= ch_.ownedCount[2];
+    const std::int64_t oz = zUp ? 0 : pz;
+    const bool xNext = ch_.ownedCount[0] <= ch_.cellCount[0];  // the last point column is the next brick's
+    for (std::int64_t py = 0; py <= ch_.cellCount[1]; ++py) {
+      const bool yUp = py >= ch_.ownedCount[1];
+      const auto row = static_cast<std::size_t>((yUp ? 0 : py) + (B_ + 1) * oz);
+      const auto keyBase = static_cast<std::uint32_t>(3 * (B_ + 1) * row);
+      const std::size_t at = slot * S_ + 3 * P_ * static_cast<std::size_t>(py);
+      for (int xUp = 0; xUp < (xNext ? 2 : 1); ++xUp) {
+        const int d = xUp | (yUp ? 2 : 0) | (zUp ? 4 : 0);
+        const ChunkTopology* o = nb_[d];
+        if (!o) continue;
+        // Entries of the owner's row: all of them, or (from the next brick) those of its first point.
+        const std::uint32_t limit = xUp ? 3 : std::numeric_limits<std::uint32_t>::max();
+        std::uint32_t* vt = &vertex_[at + (xUp ? 3 * (P_ - 1) : 0)];
+        for (std::uint32_t j = o->vertexRow[row]; j < o->vertexRow[row + 1]; ++j) {
+          const std::uint32_t k = o->vertexKey[j] - keyBase;
+          if (k >= limit) break;
+          vt[k] = clear ? kNone : static_cast<std::uint32_t>(o->vertexBase + j);
+        }
+        std::uint32_t* ft = &face_[at + (xUp ? 3 * (P_ - 1) : 0)];
+        for (std::uint32_t j = o->faceRow[row]; j < o->faceRow[row + 1]; ++j) {
+          const std::uint32_t k = o->faceKey[j] - keyBase;
+          if (k >= limit) break;
+          ft[k] = clear ? kNone : static_cast<std::uint32_t>(d) << 24 | j;
         }
       }
     }
-    items.vertex.fill(kNone);
-    items.face.fill(kNone);
-    const bool xNext = lx + 1 >= ch.ownedCount[0];  // the cell's upper x points belong to the next brick
-    // A cell's edges start at all its points but (1, 1, 1) (point row 3 only at x), its faces at (0, 0, 0)
-    // and one step up each axis: only those entries are looked up.
-    for (int d = 0; d < 4; ++d) {
-      const auto t = static_cast<std::size_t>(6 * d);
-      const bool upperX = d < 3;  // the row has edges (and row 0 faces) at the cell's upper x point
-      vMain[d].gather(lx, upperX && !xNext ? 6 : 3, &items.vertex[t]);
-      if (upperX && xNext) vNext[d].gather(0, 3, &items.vertex[t + 3]);
-      if (d < 3) fMain[d].gather(lx, d == 0 && !xNext ? 6 : 3, &items.face[t]);
-      if (d == 0 && xNext) fNext[d].gather(0, 3, &items.face[t + 3]);
-      items.owner[static_cast<std::size_t>(2 * d)] = rowOwner[d][0];
-      items.owner[static_cast<std::size_t>(2 * d + 1)] = xNext ? rowOwner[d][1] : rowOwner[d][0];
-    }
-    visit(j, I3{ch.origin[0] + lx, ch.origin[1] + ly, ch.origin[2] + lz}, items);
   }
-}
+
+  const ChunkTopology& ch_;
+  std::int64_t B_;
+  const ChunkTopology* nb_[8];
+  std::size_t P_ = 0, S_ = 0;  ///< points per table row, entries per layer
+  std::vector<std::uint32_t> vertex_, face_;
+  std::int64_t held_[2] = {-1, -1};
+  const std::uint32_t* edge_[12] = {};
+  const std::uint32_t* faceAt_[6] = {};
+};
 
 /// For every vertex and each of the four cells around its edge, in grid order, the vertices after and before
 /// it in that cell's loop (kNone where the cell is not in the model): what its normal is predicted from.
@@ -678,22 +645,30 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
   });
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
-    std::size_t row = kNone;
+    LinkLayers links(chunks, i);
+    std::uint32_t row = kNone;
+    std::int64_t layer = -1;
     std::uint64_t cellAt = 0, cornerAt = 0;
-    linkCells(chunks, i, [&](std::size_t j, const I3& idx, const CellItems& items) {
+    std::size_t rowAt = 0;
+    for (std::size_t j = 0; j < ch.cells.size(); ++j) {
       const std::uint32_t local = ch.cells[j];
-      const auto r = static_cast<std::size_t>(cellY(local) + ch.cellCount[1] * cellZ(local));
-      if (r != row) {
-        row = r;
+      const std::int64_t lx = cellX(local), ly = cellY(local), lz = cellZ(local);
+      if (local >> 8 != row) {
+        row = local >> 8;
+        const auto r = static_cast<std::size_t>(ly + ch.cellCount[1] * lz);
         cellAt = ch.rowModelCell[r];
         cornerAt = ch.rowCorners[r];
+        if (lz != layer) links.moveTo(layer = lz);
+        rowAt = links.cell(0, ly);
       }
+      const std::size_t at = rowAt + 3 * static_cast<std::size_t>(lx);
       const std::uint64_t c = cellAt++;
       ModelCell& cell = m.cells[c];
-      for (int a = 0; a < 3; ++a)
-        cell.index[static_cast<std::size_t>(a)] = static_cast<std::uint32_t>(idx[a]);
+      cell.index = {static_cast<std::uint32_t>(ch.origin[0] + lx),
+                    static_cast<std::uint32_t>(ch.origin[1] + ly),
+                    static_cast<std::uint32_t>(ch.origin[2] + lz)};
       cell.config = ch.config[j];
-      cell.pairing03 = 0;
+      std::uint8_t pairing = 0;
       if (source && (source->cells[c].index != cell.index || source->cells[c].config != cell.config))
         throw Error(name +
                     ": the model cannot be written in format 2: its cells do not follow from its signs");
@@ -701,13 +676,15 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
       for (int f = 0; f < 6; ++f) {
         double w = 0;
         if ((faces >> f) & 1) {
-          const auto [owner, fl] = items.faceOn(f);
-          if (fl == kNone)
+          const std::uint32_t value = links.faceOn(f, at);
+          if (value == kNone)
             throw Error(name + ": damaged model file: a crossed face of cell " + std::to_string(c) +
                         " is missing");
+          const ChunkTopology* owner = links.owner(value);
+          const std::uint32_t fl = value & 0xFFFFFF;
           const bool paired = source ? (source->cells[c].pairing03 >> f) & 1 : owner->facePairing[fl];
           if (paired && cube::isAmbiguousFace(cell.config, f))
-            cell.pairing03 = static_cast<std::uint8_t>(cell.pairing03 | (1u << f));
+            pairing = static_cast<std::uint8_t>(pairing | (1u << f));
           if (!owner->side.empty()) w = owner->side[fl];
           if (cellFaces)
             (*cellFaces)[c][static_cast<std::size_t>(f)] = static_cast<std::uint32_t>(owner->faceBase + fl);
@@ -716,8 +693,9 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
         }
         cell.faceCoefficient[static_cast<std::size_t>(f)] = w;
       }
+      cell.pairing03 = pairing;
       cell.central = ch.central.empty() ? 0.0 : ch.central[j];
-      const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
+      const CellLoops loops = buildCellLoops(cell.config, pairing);
       cell.numLoops = static_cast<std::uint8_t>(loops.numLoops);
       cell.loopSize = loops.loopSize;
       cell.firstCorner = static_cast<std::uint32_t>(cornerAt);
@@ -725,7 +703,7 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
       std::uint32_t* corner = &m.corners[cornerAt];
       cornerAt += static_cast<std::uint64_t>(n);
       for (int k = 0; k < n; ++k) {
-        corner[k] = items.vertexOn(loops.edges[static_cast<std::size_t>(k)]);
+        corner[k] = links.vertexOn(loops.edges[static_cast<std::size_t>(k)], at);
         if (corner[k] == kNone)
           throw Error(name + ": damaged model file: a crossed edge of cell " + std::to_string(c) +
                       " has no vertex");
@@ -740,7 +718,7 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
           slot[1] = corner[start + (k > 0 ? k - 1 : size - 1)];
         }
       }
-    });
+    }
   });
 }
 
@@ -1333,8 +1311,9 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
       for (std::int64_t c : src.cell)
         putVarint(ch.streams[kCentrals], zigzag(coefficientCode(m.cells[static_cast<std::size_t>(c)].central,
                                                                 q.centralStep, q.centralMantissa)));
-    compressStreams(ch, q.zstdLevel, chunkBytes[i]);
   });
+  tbb::parallel_for(std::size_t(0), chunks.list.size(),
+                    [&](std::size_t i) { compressStreams(chunks.list[i], q.zstdLevel, chunkBytes[i]); });
   // Header, directory, chunks.
   std::vector<std::uint8_t> out;
   std::size_t total = 0;
