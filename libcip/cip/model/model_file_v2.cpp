@@ -1,3 +1,6 @@
+#include "cip/model/model_file_v2.h"
+
+#include <emmintrin.h>
 #include <tbb/parallel_for.h>
 #include <zstd.h>
 
@@ -13,7 +16,6 @@
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
 #include "cip/model/model_file_header.h"
-#include "cip/model/model_file_v2.h"
 #include "cip/patch/patch_coefficients.h"
 #include "cip/topology/cube_topology.h"
 
@@ -722,26 +724,6 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
   });
 }
 
-/// The predicted normal of vertex g: the normal of the marching-cubes polygons around it (the sum of cross
-/// products of its loop neighbours, cells in grid order), pointing to the positive side.
-Vec3 predictedNormal(const Model& m, const LoopNeighbours& around, std::size_t g, int axis, bool startAbove) {
-  const Vec3& p = m.vertices[g].position;
-  Vec3 sum = Vec3::Zero();
-  for (int s = 0; s < 4; ++s) {
-    const std::uint32_t next = around.v[static_cast<std::size_t>(2 * s)];
-    if (next == kNone) continue;
-    const Vec3& a = m.vertices[next].position;
-    const Vec3& b = m.vertices[around.v[static_cast<std::size_t>(2 * s + 1)]].position;
-    sum += (a - p).cross(b - p);
-  }
-  Vec3 towards = Vec3::Zero();
-  towards[axis] = startAbove ? -1.0 : 1.0;
-  const double len = sum.norm();
-  Vec3 n = (len > 0 && std::isfinite(len)) ? Vec3(sum / len) : towards;
-  if (n.dot(towards) < 0) n = -n;
-  return n;
-}
-
 /// The stored normal of a vertex from its prediction and residual code.
 Vec3 normalFromCode(const Vec3& pred, std::int64_t qu, std::int64_t qv, double step, int axis,
                     std::uint8_t flags) {
@@ -759,14 +741,12 @@ Vec3 normalFromCode(const Vec3& pred, std::int64_t qu, std::int64_t qv, double s
   return orientCornerNormal(n, towards);
 }
 
-/// The residual code of normal n against its prediction. Where the reader's corrections (normalFromCode: the
-/// grid-point rule, the minimal angle to the edge) may have moved a stored normal off its code's direction,
-/// the codes around are searched for one that decodes to n exactly, so that writing a model read from a file
-/// gives the same file.
-void normalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uint8_t flags, std::int64_t& qu,
-                std::int64_t& qv) {
-  Vec3 b1, b2;
-  frameOf(pred, b1, b2);
+/// The residual code of normal n against its prediction (and its frame, frameOf). Where the reader's
+/// corrections (normalFromCode: the grid-point rule, the minimal angle to the edge) may have moved a stored
+/// normal off its code's direction, the codes around are searched for one that decodes to n exactly, so that
+/// writing a model read from a file gives the same file.
+void normalCode(const Vec3& pred, const Vec3& b1, const Vec3& b2, const Vec3& n, double step, int axis,
+                std::uint8_t flags, std::int64_t& qu, std::int64_t& qv) {
   double u, v;
   octEncode(Vec3(n.dot(b1), n.dot(b2), n.dot(pred)), u, v);
   qu = std::llround(u / step);
@@ -783,22 +763,205 @@ void normalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uin
       }
 }
 
-/// Sets every vertex normal from its prediction and the residual code that `codeOf(chunk)` gives for each of
-/// the chunk's vertices (the reader reads it, the writer chooses it), then puts the full-precision normals.
+// ---- normals, several vertices at a time ----------------------------------------------------------------
+// A vertex's normal is predicted from its loop neighbours: the sum of the cross products (a - p) × (b - p) of
+// the vectors to its two neighbours in each cell around its edge (cells in grid order), divided by its norm
+// (the direction towards the positive side along the edge where that is not a positive finite number), and
+// turned to the positive side. The predictions, their frames and the decoded normals of a block of a chunk's
+// vertices are computed two vertices at a time (SSE2 lanes), with the same IEEE operations in the same order
+// as the scalar Eigen expressions of frameOf, octDecode, normalFromCode and orientCornerNormal (Vec3::norm,
+// normalized, cross, dot, ...): each lane's result is the scalar one bit for bit, so a file decodes to the
+// same model on any machine as it did before these were vectorised.
+
+using Lanes = double __attribute__((vector_size(16)));
+using LaneMask = std::int64_t __attribute__((vector_size(16)));
+constexpr std::size_t kLanes = 2;
+
+Lanes load(const double* p) {
+  Lanes v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+void store(double* p, Lanes v) {
+  std::memcpy(p, &v, sizeof v);
+}
+Lanes splat(double x) {
+  return Lanes{x, x};
+}
+Lanes sqrtLanes(Lanes x) {
+  return _mm_sqrt_pd(x);
+}
+Lanes absLanes(Lanes x) {
+  return _mm_andnot_pd(splat(-0.0), x);
+}
+/// Per lane: m ? a : b.
+Lanes select(LaneMask m, Lanes a, Lanes b) {
+  return m ? a : b;
+}
+/// (x, y, z) / sqrt(x² + y² + z²) where that square is positive (Vec3::normalized).
+void normalizeLanes(Lanes& x, Lanes& y, Lanes& z) {
+  const Lanes sq = (x * x + y * y) + z * z, len = sqrtLanes(sq);
+  const LaneMask positive = sq > splat(0.0);
+  x = select(positive, x / len, x);
+  y = select(positive, y / len, y);
+  z = select(positive, z / len, z);
+}
+
+/// Up to kSize vertices of one chunk on their way from their loop neighbours to their normals, one array per
+/// coordinate.
+struct NormalBlock {
+  static constexpr std::size_t kSize = 64;
+  std::size_t count = 0;
+  alignas(16) double sx[kSize], sy[kSize], sz[kSize];  ///< the sum of the cross products
+  alignas(16) double tx[kSize], ty[kSize], tz[kSize];  ///< towards the positive side along the edge
+  alignas(16) double px[kSize], py[kSize], pz[kSize];  ///< the prediction
+  alignas(16) double ax[kSize], ay[kSize], az[kSize];  ///< the frame's first axis
+  alignas(16) double bx[kSize], by[kSize], bz[kSize];  ///< its second
+  alignas(16) double u[kSize], v[kSize];               ///< the residual codes times the step
+  alignas(16) std::int64_t keepX[kSize], keepY[kSize], keepZ[kSize];  ///< -1: keep, 0: a zero component
+  alignas(16) double nx[kSize], ny[kSize], nz[kSize];                 ///< the normal
+};
+
+/// The block's sums of cross products (Eigen, cells in grid order) and the direction towards
+/// the positive side, for the chunk's vertices first .. first + b.count - 1.
+void sumBlock(const Model& m, const std::vector<LoopNeighbours>& around, const ChunkTopology& ch,
+              std::size_t first, NormalBlock& b) {
+  for (std::size_t k = 0; k < b.count; ++k) {
+    const std::size_t v = first + k, g = ch.vertexBase + v;
+    const Vec3& p = m.vertices[g].position;
+    Vec3 sum = Vec3::Zero();
+    const LoopNeighbours& nbr = around[g];
+    for (int s = 0; s < 4; ++s) {
+      const std::uint32_t next = nbr.v[static_cast<std::size_t>(2 * s)];
+      if (next == kNone) continue;
+      const Vec3& a = m.vertices[next].position;
+      const Vec3& c = m.vertices[nbr.v[static_cast<std::size_t>(2 * s + 1)]].position;
+      sum += (a - p).cross(c - p);
+    }
+    b.sx[k] = sum.x();
+    b.sy[k] = sum.y();
+    b.sz[k] = sum.z();
+    const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+    const double towards = (ch.vertexFlags[v] & 32) ? -1.0 : 1.0;
+    b.tx[k] = axis == 0 ? towards : 0.0;
+    b.ty[k] = axis == 1 ? towards : 0.0;
+    b.tz[k] = axis == 2 ? towards : 0.0;
+  }
+  for (std::size_t k = b.count; k < (b.count + kLanes - 1) / kLanes * kLanes; ++k) {  // a lane's padding
+    b.sx[k] = b.sy[k] = b.sz[k] = b.ty[k] = b.tz[k] = 0.0;
+    b.tx[k] = 1.0;
+  }
+}
+
+/// Predictions from the sums and their frames (frameOf).
+void predictBlock(NormalBlock& b) {
+  for (std::size_t k = 0; k < b.count; k += kLanes) {
+    const Lanes sx = load(b.sx + k), sy = load(b.sy + k), sz = load(b.sz + k);
+    const Lanes tx = load(b.tx + k), ty = load(b.ty + k), tz = load(b.tz + k);
+    const Lanes len = sqrtLanes((sx * sx + sy * sy) + sz * sz);
+    const LaneMask ok = (len > splat(0.0)) & (len <= splat(std::numeric_limits<double>::max()));
+    Lanes px = select(ok, sx / len, tx), py = select(ok, sy / len, ty), pz = select(ok, sz / len, tz);
+    const LaneMask flip = ((px * tx + py * ty) + pz * tz) < splat(0.0);
+    px = select(flip, -px, px);
+    py = select(flip, -py, py);
+    pz = select(flip, -pz, pz);
+    store(b.px + k, px);
+    store(b.py + k, py);
+    store(b.pz + k, pz);
+    // frameOf: (|p.x| < 0.9 ? unit x : unit y) × p, normalised; then p × that.
+    const LaneMask useX = absLanes(px) < splat(0.9);
+    const Lanes ex = select(useX, splat(1.0), splat(0.0)), ey = select(useX, splat(0.0), splat(1.0)),
+                ez = splat(0.0);
+    Lanes ax = ey * pz - ez * py, ay = ez * px - ex * pz, az = ex * py - ey * px;
+    normalizeLanes(ax, ay, az);
+    store(b.ax + k, ax);
+    store(b.ay + k, ay);
+    store(b.az + k, az);
+    store(b.bx + k, py * az - pz * ay);
+    store(b.by + k, pz * ax - px * az);
+    store(b.bz + k, px * ay - py * ax);
+  }
+}
+
+/// The normals from the predictions, frames and residuals (normalFromCode).
+void decodeBlock(NormalBlock& b) {
+  const Lanes one = splat(1.0), minCos = splat(0.05);
+  for (std::size_t k = 0; k < b.count; k += kLanes) {
+    // octDecode
+    const Lanes u = load(b.u + k), v = load(b.v + k);
+    const Lanes au = absLanes(u), av = absLanes(v);
+    Lanes lx = u, ly = v, lz = (one - au) - av;
+    const LaneMask folded = lz < splat(0.0);
+    lx = select(folded, (one - av) * select(u >= splat(0.0), one, -one), lx);
+    ly = select(folded, (one - au) * select(v >= splat(0.0), one, -one), ly);
+    normalizeLanes(lx, ly, lz);
+    // b1 local.x + b2 local.y + pred local.z, normalised
+    const Lanes px = load(b.px + k), py = load(b.py + k), pz = load(b.pz + k);
+    Lanes nx = (load(b.ax + k) * lx + load(b.bx + k) * ly) + px * lz;
+    Lanes ny = (load(b.ay + k) * lx + load(b.by + k) * ly) + py * lz;
+    Lanes nz = (load(b.az + k) * lx + load(b.bz + k) * ly) + pz * lz;
+    normalizeLanes(nx, ny, nz);
+    LaneMask keep;
+    std::memcpy(&keep, b.keepX + k, sizeof keep);
+    nx = select(keep, nx, splat(0.0));
+    std::memcpy(&keep, b.keepY + k, sizeof keep);
+    ny = select(keep, ny, splat(0.0));
+    std::memcpy(&keep, b.keepZ + k, sizeof keep);
+    nz = select(keep, nz, splat(0.0));
+    // orientCornerNormal
+    const Lanes tx = load(b.tx + k), ty = load(b.ty + k), tz = load(b.tz + k);
+    const Lanes len = sqrtLanes((nx * nx + ny * ny) + nz * nz);
+    const LaneMask ok = (len > splat(0.0)) & (len <= splat(std::numeric_limits<double>::max()));
+    nx = nx / len;
+    ny = ny / len;
+    nz = nz / len;
+    const Lanes c = (nx * tx + ny * ty) + nz * tz;
+    const LaneMask tilt = c < minCos;
+    Lanes mx = nx + (minCos - c) * tx, my = ny + (minCos - c) * ty, mz = nz + (minCos - c) * tz;
+    normalizeLanes(mx, my, mz);
+    store(b.nx + k, select(ok, select(tilt, mx, nx), tx));
+    store(b.ny + k, select(ok, select(tilt, my, ny), ty));
+    store(b.nz + k, select(ok, select(tilt, mz, nz), tz));
+  }
+}
+
+/// Sets every vertex normal from its prediction and residual code, a block of each chunk's vertices at a
+/// time: `codeOf(chunk)` returns a function of (first vertex of the block, block) that sets the block's
+/// residuals (u, v: the codes times the step) from its predictions and frames (the reader reads the codes,
+/// the writer chooses them). The normals are decoded when `decode` (a writer needs them only for `paper`
+/// models); then the full-precision normals are put.
 template <class CodeOf>
-void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbours>& around, double step,
+void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbours>& around, bool decode,
                    CodeOf&& codeOf) {
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
     auto code = codeOf(i);
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      const std::size_t g = ch.vertexBase + v;
-      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-      const std::uint8_t flags = ch.vertexFlags[v];
-      const Vec3 pred = predictedNormal(m, around[g], g, axis, (flags >> 5) & 1);
-      std::int64_t qu = 0, qv = 0;
-      code(v, pred, qu, qv);
-      m.vertices[g].normal = normalFromCode(pred, qu, qv, step, axis, flags);
+    NormalBlock b;
+    for (std::size_t first = 0; first < ch.vertexKey.size(); first += NormalBlock::kSize) {
+      b.count = std::min(NormalBlock::kSize, ch.vertexKey.size() - first);
+      sumBlock(m, around, ch, first, b);
+      predictBlock(b);
+      code(first, b);
+      if (!decode) continue;
+      for (std::size_t k = 0; k < b.count; ++k) {
+        const std::uint8_t flags = ch.vertexFlags[first + k];
+        std::int64_t keep[3] = {-1, -1, -1};
+        if (flags & 64) {  // on a grid point: the components that are exactly zero stay so
+          const auto o = cube::otherAxes(static_cast<int>(ch.vertexKey[first + k] % 3));
+          for (int oi = 0; oi < 2; ++oi)
+            if ((flags >> oi) & 1) keep[o[oi]] = 0;
+        }
+        b.keepX[k] = keep[0];
+        b.keepY[k] = keep[1];
+        b.keepZ[k] = keep[2];
+      }
+      for (std::size_t k = b.count; k < (b.count + kLanes - 1) / kLanes * kLanes; ++k) {
+        b.u[k] = b.v[k] = 0.0;
+        b.keepX[k] = b.keepY[k] = b.keepZ[k] = -1;
+      }
+      decodeBlock(b);
+      for (std::size_t k = 0; k < b.count; ++k)
+        m.vertices[ch.vertexBase + first + k].normal = Vec3(b.nx[k], b.ny[k], b.nz[k]);
     }
     for (std::size_t k = 0; k < ch.exact.size(); ++k)
       m.vertices[ch.vertexBase + ch.exact[k]].normal = ch.exactNormal[k];
@@ -1264,19 +1427,23 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   // Normal codes against the prediction, and the normals (and weights) a reader will have.
   std::vector<std::array<std::int64_t, 2>> codes(sk.vertices.size(), {0, 0});
   auto codeNormals = [&] {
-    decodeNormals(sk, chunks, around, nStep, [&](std::size_t i) {
-      return [&, i](std::size_t v, const Vec3& pred, std::int64_t& qu, std::int64_t& qv) {
+    decodeNormals(sk, chunks, around, m.method == PatchMethod::Paper, [&](std::size_t i) {
+      return [&, i](std::size_t first, NormalBlock& b) {
         const ChunkTopology& ch = chunks.list[i];
-        const std::int64_t mvi = sources[i].vertex[v];
-        std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
-        if (mvi >= 0) {
-          const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
-          normalCode(pred, mv.normal, nStep, static_cast<int>(ch.vertexKey[v] % 3), ch.vertexFlags[v], c[0],
-                     c[1]);
-          sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
+        for (std::size_t k = 0; k < b.count; ++k) {
+          const std::size_t v = first + k;
+          const std::int64_t mvi = sources[i].vertex[v];
+          std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
+          if (mvi >= 0) {
+            const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
+            normalCode(Vec3(b.px[k], b.py[k], b.pz[k]), Vec3(b.ax[k], b.ay[k], b.az[k]),
+                       Vec3(b.bx[k], b.by[k], b.bz[k]), mv.normal, nStep,
+                       static_cast<int>(ch.vertexKey[v] % 3), ch.vertexFlags[v], c[0], c[1]);
+            sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
+          }
+          b.u[k] = static_cast<double>(c[0]) * nStep;
+          b.v[k] = static_cast<double>(c[1]) * nStep;
         }
-        qu = c[0];
-        qv = c[1];
       };
     });
   };
@@ -1635,7 +1802,7 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
   readCoefficients(ch, h, where);
 }
 
-/// A chunk's weights and normal codes, read in step with decodeNormals (one call per vertex, in order).
+/// A chunk's weights and normal codes, read in step with decodeNormals (one call per block, in order).
 class NormalCodeReader {
  public:
   NormalCodeReader(const ChunkTopology& ch, const FileHeader& h, Model& m, const std::string& where)
@@ -1643,18 +1810,22 @@ class NormalCodeReader {
         m_(m),
         weights_((h.flags & kWeightsStored) != 0),
         limit_((std::int64_t(1) << h.q.normalBits) + 1),
+        step_(std::ldexp(1.0, -h.q.normalBits)),
         normals_(&ch.streams[kNormals], where + ": normals"),
         corner_(&ch.streams[kWeights], where + ": corner coefficients") {}
-  void operator()(std::size_t v, const Vec3&, std::int64_t& qu, std::int64_t& qv) {
-    qu = normals_.svarint();
-    qv = normals_.svarint();
-    if (std::abs(qu) > limit_ || std::abs(qv) > limit_) normals_.fail("has a normal code out of range");
-    if (weights_) {
-      double& w = m_.vertices[ch_.vertexBase + v].weight;
-      w = corner_.f64();
-      if (!std::isfinite(w)) corner_.fail("has a non-finite corner coefficient");
+  void operator()(std::size_t first, NormalBlock& b) {
+    for (std::size_t k = 0; k < b.count; ++k) {
+      const std::int64_t qu = normals_.svarint(), qv = normals_.svarint();
+      if (std::abs(qu) > limit_ || std::abs(qv) > limit_) normals_.fail("has a normal code out of range");
+      b.u[k] = static_cast<double>(qu) * step_;
+      b.v[k] = static_cast<double>(qv) * step_;
+      if (weights_) {
+        double& w = m_.vertices[ch_.vertexBase + first + k].weight;
+        w = corner_.f64();
+        if (!std::isfinite(w)) corner_.fail("has a non-finite corner coefficient");
+      }
     }
-    if (v + 1 == ch_.vertexKey.size()) {
+    if (first + b.count == ch_.vertexKey.size()) {
       normals_.expectEnd();
       corner_.expectEnd();
     }
@@ -1665,6 +1836,7 @@ class NormalCodeReader {
   Model& m_;
   bool weights_;
   std::int64_t limit_;
+  double step_;
   StreamReader normals_, corner_;
 };
 
@@ -1745,7 +1917,7 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   CellFaces cellFaces;
   fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, name);
   placeVertices(chunks, h.q.positionBits, m);
-  decodeNormals(m, chunks, around, std::ldexp(1.0, -h.q.normalBits), [&](std::size_t i) {
+  decodeNormals(m, chunks, around, true, [&](std::size_t i) {
     return NormalCodeReader(chunks.list[i], h, m, chunkName(name, i, h.dir[i], chunks.L.B));
   });
   if (paper) {  // the side coefficients read so far are residuals against the paper's rule
