@@ -88,6 +88,29 @@ class StreamReader {
     if (v >> 63) fail("has a number out of range");
     return unzigzag(v);
   }
+  /// n signed numbers into out: svarint() n times, with the common one- and two-byte numbers read without a
+  /// branch on their length.
+  void svarints(std::size_t n, std::int64_t* out) {
+    const std::uint8_t* data = b_->data();
+    const std::size_t size = b_->size();
+    std::size_t pos = pos_;
+    for (std::size_t i = 0; i < n; ++i) {
+      std::uint64_t v;
+      const std::uint64_t b0 = pos < size ? data[pos] : 0x80, b1 = pos + 1 < size ? data[pos + 1] : 0x80;
+      const std::uint64_t two = b0 >> 7;
+      if (!(two & (b1 >> 7))) {
+        v = (b0 & 0x7F) | ((b1 & (0 - two)) << 7);
+        pos += 1 + two;
+      } else {
+        pos_ = pos;
+        v = varint();
+        if (v >> 63) fail("has a number out of range");
+        pos = pos_;
+      }
+      out[i] = unzigzag(v);
+    }
+    pos_ = pos;
+  }
   std::uint8_t byte() {
     if (pos_ >= b_->size()) fail("ends early");
     return (*b_)[pos_++];
@@ -140,23 +163,26 @@ std::int64_t coefficientCode(double w, double step, int m) {
 double coefficientValue(std::int64_t code, double step, int m) {
   const std::int64_t lim = std::int64_t(1) << m;
   const std::int64_t c = code < 0 ? -code : code;
+  // Below lim: c itself (times 2^0); above: lim + rem times 2^block. A product by a power of two is exact, as
+  // ldexp is (the power is built from its exponent bits while it is a normal number). Selects, not branches:
+  // which case a code is in follows no pattern.
+  const bool linear = c < lim;
+  const std::int64_t block = linear ? 0 : (c - lim) >> m;
+  const std::int64_t mantissa = linear ? c : lim + ((c - lim) & (lim - 1));
   double a;
-  if (c < lim) {
-    a = static_cast<double>(c);
+  if (block < 1000) {
+    const std::uint64_t bits = static_cast<std::uint64_t>(1023 + block) << 52;
+    double power;
+    std::memcpy(&power, &bits, 8);
+    a = static_cast<double>(mantissa) * power;
   } else {
-    const std::int64_t block = (c - lim) >> m, rem = (c - lim) & (lim - 1);
-    // lim + rem times 2^block: a product by a power of two is exact, as ldexp is (the power is built from
-    // its exponent bits while it is a normal number).
-    if (block < 1000) {
-      const std::uint64_t bits = static_cast<std::uint64_t>(1023 + block) << 52;
-      double power;
-      std::memcpy(&power, &bits, 8);
-      a = static_cast<double>(lim + rem) * power;
-    } else {
-      a = std::ldexp(static_cast<double>(lim + rem), static_cast<int>(std::min<std::int64_t>(block, 4000)));
-    }
+    a = std::ldexp(static_cast<double>(mantissa), static_cast<int>(std::min<std::int64_t>(block, 4000)));
   }
-  return (code < 0 ? -a : a) * step;
+  std::uint64_t bits;  // -a where the code is negative: its sign bit flipped
+  std::memcpy(&bits, &a, 8);
+  bits ^= static_cast<std::uint64_t>(code < 0) << 63;
+  std::memcpy(&a, &bits, 8);
+  return a * step;
 }
 
 void octEncode(const Vec3& n, double& u, double& v) {
@@ -1666,20 +1692,24 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
 void readCoefficients(ChunkTopology& ch, const FileHeader& h, const std::string& where) {
   StreamReader sr(&ch.streams[kSides], where + ": side coefficients");
   StreamReader cr(&ch.streams[kCentrals], where + ": central coefficients");
-  if (h.flags & kSidesStored) {
-    ch.side.resize(ch.faceKey.size());
-    for (double& w : ch.side) {
-      w = coefficientValue(sr.svarint(), h.q.sideStep, h.q.sideMantissa);
-      if (!std::isfinite(w)) sr.fail("has a side coefficient out of range");
+  // Each stream's codes first, then their values; a non-finite value is reported once the stream is read.
+  std::vector<std::int64_t> codes;
+  auto read = [&codes](StreamReader& in, std::vector<double>& out, std::size_t n, double step, int m,
+                       const char* what) {
+    codes.resize(n);
+    in.svarints(n, codes.data());
+    out.resize(n);
+    double* w = out.data();
+    bool finite = true;
+    for (std::size_t i = 0; i < n; ++i) {
+      w[i] = coefficientValue(codes[i], step, m);
+      finite &= std::abs(w[i]) <= std::numeric_limits<double>::max();
     }
-  }
-  if (h.flags & kCentralsStored) {
-    ch.central.resize(ch.cells.size());
-    for (double& w : ch.central) {
-      w = coefficientValue(cr.svarint(), h.q.centralStep, h.q.centralMantissa);
-      if (!std::isfinite(w)) cr.fail("has a central coefficient out of range");
-    }
-  }
+    if (!finite) in.fail(std::string("has a ") + what + " coefficient out of range");
+  };
+  if (h.flags & kSidesStored) read(sr, ch.side, ch.faceKey.size(), h.q.sideStep, h.q.sideMantissa, "side");
+  if (h.flags & kCentralsStored)
+    read(cr, ch.central, ch.cells.size(), h.q.centralStep, h.q.centralMantissa, "central");
   sr.expectEnd();
   cr.expectEnd();
 }
