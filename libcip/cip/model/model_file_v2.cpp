@@ -1396,19 +1396,38 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   for (int a = 0; a < 3; ++a) L.nb[a] = (L.dims[a] - 1 + L.B - 1) / L.B;
   for (double v : {m.geometry.origin[0], m.geometry.origin[1], m.geometry.origin[2], m.isovalue})
     if (!std::isfinite(v)) throw Error("model format 2: the header has a non-finite number");
-  // Bricks with cells, and the bricks above them that own their upper edges and faces.
+  // Bricks with cells, and the bricks above them that own their upper edges and faces. Cells come in grid
+  // order, so a brick is listed once per run of its cells in a row; only cells on a brick's upper faces
+  // look further.
   std::vector<std::int64_t> keys;
-  for (const ModelCell& c : m.cells) {
-    const I3 idx{c.index[0], c.index[1], c.index[2]};
-    const I3 b{idx[0] / L.B, idx[1] / L.B, idx[2] / L.B};
-    for (int d = 0; d < 8; ++d) {
-      const auto o = cube::vertexCoords(d);
-      if ((o[0] && idx[0] % L.B != L.B - 1) || (o[1] && idx[1] % L.B != L.B - 1) ||
-          (o[2] && idx[2] % L.B != L.B - 1))
-        continue;
-      const I3 p{idx[0] + o[0], idx[1] + o[1], idx[2] + o[2]};
-      const I3 pb = L.pointBrick(p);
-      if (pb != b || d == 0) keys.push_back(L.key(pb));
+  {
+    std::int64_t lastKey = -1, rowJ = -1, rowK = -1, xEnd = 0, bx = 0, by = 0, bz = 0;
+    bool topY = false, topZ = false;
+    for (const ModelCell& c : m.cells) {
+      const I3 idx{c.index[0], c.index[1], c.index[2]};
+      if (idx[1] != rowJ || idx[2] != rowK) {
+        rowJ = idx[1];
+        rowK = idx[2];
+        by = rowJ / L.B;
+        bz = rowK / L.B;
+        topY = rowJ % L.B == L.B - 1;
+        topZ = rowK % L.B == L.B - 1;
+        xEnd = 0;
+      }
+      if (idx[0] >= xEnd || idx[0] < xEnd - L.B) {
+        bx = idx[0] / L.B;
+        xEnd = (bx + 1) * L.B;
+      }
+      const I3 b{bx, by, bz};
+      const std::int64_t own = L.key(b);
+      if (own != lastKey) keys.push_back(lastKey = own);
+      if (!topY && !topZ && idx[0] != xEnd - 1) continue;
+      for (int d = 1; d < 8; ++d) {
+        const auto o = cube::vertexCoords(d);
+        if ((o[0] && idx[0] != xEnd - 1) || (o[1] && !topY) || (o[2] && !topZ)) continue;
+        const I3 pb = L.pointBrick({idx[0] + o[0], idx[1] + o[1], idx[2] + o[2]});
+        if (pb != b) keys.push_back(L.key(pb));
+      }
     }
   }
   std::sort(keys.begin(), keys.end());
