@@ -139,6 +139,15 @@ std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
 
 // ---- quantisers (shared by writer and reader: the reader's values are the writer's, bit for bit) ---------
 
+/// std::llround(x), without the library call where |x| < 2^52 (there x - trunc(x) is exact).
+std::int64_t roundHalfAway(double x) {
+  const double a = std::abs(x);
+  if (!(a < 4503599627370496.0)) return std::llround(x);
+  const auto i = static_cast<std::int64_t>(a);
+  const std::int64_t r = i + (a - static_cast<double>(i) >= 0.5);
+  return x < 0 ? -r : r;
+}
+
 /// A float-like code: linear steps of `step` up to 2^m steps, then m bits of relative precision.
 std::int64_t coefficientCode(double w, double step, int m) {
   const double v = w / step;
@@ -146,11 +155,20 @@ std::int64_t coefficientCode(double w, double step, int m) {
   const std::int64_t lim = std::int64_t(1) << m;
   std::int64_t code;
   if (a < static_cast<double>(lim)) {
-    code = std::llround(a);
+    code = roundHalfAway(a);
   } else {
     int ex;
-    const double fr = std::frexp(a, &ex);  // a = fr 2^ex, fr in [0.5, 1)
-    std::int64_t r = std::llround(std::ldexp(fr, m + 1));
+    double fr;  // a = fr 2^ex, fr in [0.5, 1)
+    std::uint64_t bits;
+    std::memcpy(&bits, &a, 8);
+    if ((bits >> 52) < 0x7FF) {  // finite (and normal, being at least 2): frexp from the exponent bits
+      ex = static_cast<int>(bits >> 52) - 1022;
+      bits = (bits & ((std::uint64_t(1) << 52) - 1)) | (std::uint64_t(1022) << 52);
+      std::memcpy(&fr, &bits, 8);
+    } else {
+      fr = std::frexp(a, &ex);
+    }
+    std::int64_t r = roundHalfAway(fr * static_cast<double>(2 * lim));  // ldexp(fr, m + 1): exact
     if (r == 2 * lim) {
       r = lim;
       ++ex;
@@ -650,12 +668,20 @@ void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
   });
 }
 
+/// Which model vertex each vertex of the file is, and which model cells each face of the file bounds: per
+/// vertex the model vertex of each cell around its edge (in grid order), per face the cell on each side.
+struct ModelUse {
+  std::vector<std::array<std::uint32_t, 4>> vertex;
+  std::vector<std::array<std::uint32_t, 2>> face;
+};
+
 /// Fills the model's cells (index, configuration, pairings, loops, corners, and the coefficients the chunks
 /// carry) and every vertex's loop neighbours, one pass per chunk; records each cell's faces (model-wide face
-/// index per cell face, kNone) when asked. The model's tables are sized here. The pairings are the chunks'
+/// index per cell face, kNone) when asked, and (writer) which model vertex and cells each vertex and face of
+/// the file carries (`use`). The model's tables are sized here. The pairings are the chunks'
 /// (reader), or those of `source`'s cells (writer), whose cells must then be the ones the signs give.
 void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, CellFaces* cellFaces,
-               const Model* source, const std::string& name) {
+               const Model* source, ModelUse* use, const std::string& name) {
   std::uint64_t corners = 0, vertices = 0;
   const std::uint64_t cells = placeCellRows(chunks, corners);
   if (corners > std::numeric_limits<std::uint32_t>::max()) throw Error(name + ": too many corners");
@@ -667,6 +693,12 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
   resizeHuge(m.vertices, vertices);
   around.resize(vertices);
   if (cellFaces) cellFaces->resize(cells);
+  if (use) {
+    std::uint64_t faces = 0;
+    for (const ChunkTopology& ch : chunks.list) faces += ch.faceKey.size();
+    use->vertex.assign(vertices, {kNone, kNone, kNone, kNone});
+    use->face.assign(faces, {kNone, kNone});
+  }
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
     for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) around[ch.vertexBase + v].v.fill(kNone);
@@ -697,7 +729,9 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
                     static_cast<std::uint32_t>(ch.origin[2] + lz)};
       cell.config = ch.config[j];
       std::uint8_t pairing = 0;
-      if (source && (source->cells[c].index != cell.index || source->cells[c].config != cell.config))
+      if (source &&
+          (source->cells[c].index[0] != cell.index[0] || source->cells[c].index[1] != cell.index[1] ||
+           source->cells[c].index[2] != cell.index[2] || source->cells[c].config != cell.config))
         throw Error(name +
                     ": the model cannot be written in format 2: its cells do not follow from its signs");
       const std::uint8_t faces = kCrossedFaces[cell.config];
@@ -716,6 +750,8 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
           if (!owner->side.empty()) w = owner->side[fl];
           if (cellFaces)
             (*cellFaces)[c][static_cast<std::size_t>(f)] = static_cast<std::uint32_t>(owner->faceBase + fl);
+          if (use)
+            use->face[owner->faceBase + fl][static_cast<std::size_t>(f & 1)] = static_cast<std::uint32_t>(c);
         } else if (cellFaces) {
           (*cellFaces)[c][static_cast<std::size_t>(f)] = kNone;
         }
@@ -744,6 +780,9 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
           std::uint32_t* slot = &around[corner[start + k]].v[static_cast<std::size_t>(2 * aroundSlot(e))];
           slot[0] = corner[start + (k + 1 < size ? k + 1 : 0)];
           slot[1] = corner[start + (k > 0 ? k - 1 : size - 1)];
+          if (use)
+            use->vertex[corner[start + k]][static_cast<std::size_t>(aroundSlot(e))] =
+                source->corners[source->cells[c].firstCorner + static_cast<std::uint32_t>(start + k)];
         }
       }
     }
@@ -775,8 +814,8 @@ void normalCode(const Vec3& pred, const Vec3& b1, const Vec3& b2, const Vec3& n,
                 std::uint8_t flags, std::int64_t& qu, std::int64_t& qv) {
   double u, v;
   octEncode(Vec3(n.dot(b1), n.dot(b2), n.dot(pred)), u, v);
-  qu = std::llround(u / step);
-  qv = std::llround(v / step);
+  qu = roundHalfAway(u / step);
+  qv = roundHalfAway(v / step);
   const double towards = (flags & 32) ? -n[axis] : n[axis];
   if (!(flags & 64) && towards > 0.0501) return;
   if (normalFromCode(pred, qu, qv, step, axis, flags) == n) return;
@@ -1202,35 +1241,6 @@ void buildChunkFromModel(const Model& m, const Layout& L, ChunkTopology& ch, Chu
   ownedItems(L, ch);
 }
 
-/// Which model vertex each vertex of the file is, and which model cells each face of the file bounds: per
-/// vertex the model vertex of each cell around its edge (in grid order), per face the cell on each side.
-struct ModelUse {
-  std::vector<std::array<std::uint32_t, 4>> vertex;
-  std::vector<std::array<std::uint32_t, 2>> face;
-};
-
-ModelUse modelUse(const Model& m, const Model& sk, const CellFaces& cellFaces, std::size_t faces) {
-  ModelUse use;
-  use.vertex.assign(sk.vertices.size(), {kNone, kNone, kNone, kNone});
-  use.face.assign(faces, {kNone, kNone});
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, sk.cells.size()), [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t c = r.begin(); c < r.end(); ++c) {
-          const ModelCell& cell = sk.cells[c];
-          const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
-          for (int k = 0; k < loops.numCorners(); ++k)
-            use.vertex[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]]
-                      [static_cast<std::size_t>(aroundSlot(loops.edges[static_cast<std::size_t>(k)]))] =
-                m.corners[m.cells[c].firstCorner + static_cast<std::uint32_t>(k)];
-          for (int f = 0; f < 6; ++f)
-            if (cellFaces[c][static_cast<std::size_t>(f)] != kNone)
-              use.face[cellFaces[c][static_cast<std::size_t>(f)]][static_cast<std::size_t>(f & 1)] =
-                  static_cast<std::uint32_t>(c);
-        }
-      });
-  return use;
-}
-
 /// The chunk's crossing parameters, zero normal components, pairings and side coefficients from the model.
 void codeChunkItems(const Model& m, const Layout& L, const ModelFileV2Options& q, const ModelUse& use,
                     ChunkTopology& ch, ChunkSource& src, const std::string& name) {
@@ -1257,7 +1267,7 @@ void codeChunkItems(const Model& m, const Layout& L, const ModelFileV2Options& q
       if (!(t >= 0 && t <= 1))
         throw Error(name + ": the model cannot be written in format 2: a vertex is not on its grid edge");
     }
-    ch.tCode[v] = static_cast<std::uint16_t>(std::clamp<long long>(std::llround(t * tMax), 0, tMax));
+    ch.tCode[v] = static_cast<std::uint16_t>(std::clamp<std::int64_t>(roundHalfAway(t * tMax), 0, tMax));
     ch.streams[kPositionsLo].push_back(static_cast<std::uint8_t>(ch.tCode[v] & 0xFF));
     if (q.positionBits > 8) ch.streams[kPositionsHi].push_back(static_cast<std::uint8_t>(ch.tCode[v] >> 8));
   }
@@ -1455,9 +1465,9 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   for (ChunkTopology& ch : chunks.list) indexCellRows(ch);
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
-  fillCells(chunks, sk, around, &cellFaces, &m, name);
   {
-    const ModelUse use = modelUse(m, sk, cellFaces, fb);
+    ModelUse use;
+    fillCells(chunks, sk, around, m.method == PatchMethod::Paper ? &cellFaces : nullptr, &m, &use, name);
     tbb::parallel_for(std::size_t(0), chunks.list.size(),
                       [&](std::size_t i) { codeChunkItems(m, L, q, use, chunks.list[i], sources[i], name); });
   }
@@ -1505,6 +1515,10 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     ChunkTopology& ch = chunks.list[i];
     const ChunkSource& src = sources[i];
+    // Room for the usual one or two bytes per number, so that the streams seldom grow.
+    ch.streams[kNormals].reserve(4 * ch.vertexKey.size());
+    ch.streams[kSides].reserve(2 * src.side.size());
+    ch.streams[kCentrals].reserve(2 * src.cell.size());
     for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
       putVarint(ch.streams[kNormals], zigzag(codes[ch.vertexBase + v][0]));
       putVarint(ch.streams[kNormals], zigzag(codes[ch.vertexBase + v][1]));
@@ -1964,7 +1978,7 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   const bool paper = m.method == PatchMethod::Paper;
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
-  fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, name);
+  fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, nullptr, name);
   placeVertices(chunks, h.q.positionBits, m);
   decodeNormals(m, chunks, around, true, [&](std::size_t i) {
     return NormalCodeReader(chunks.list[i], h, m, chunkName(name, i, h.dir[i], chunks.L.B));
