@@ -153,31 +153,36 @@ std::int64_t coefficientCode(double w, double step, int m) {
   const double v = w / step;
   const double a = std::abs(v);
   const std::int64_t lim = std::int64_t(1) << m;
-  std::int64_t code;
-  if (a < static_cast<double>(lim)) {
-    code = roundHalfAway(a);
-  } else {
+  std::uint64_t bits;
+  std::memcpy(&bits, &a, 8);
+  if ((bits >> 52) >= 0x7FF) {  // not finite: as frexp and llround take it
     int ex;
-    double fr;  // a = fr 2^ex, fr in [0.5, 1)
-    std::uint64_t bits;
-    std::memcpy(&bits, &a, 8);
-    if ((bits >> 52) < 0x7FF) {  // finite (and normal, being at least 2): frexp from the exponent bits
-      ex = static_cast<int>(bits >> 52) - 1022;
-      bits = (bits & ((std::uint64_t(1) << 52) - 1)) | (std::uint64_t(1022) << 52);
-      std::memcpy(&fr, &bits, 8);
-    } else {
-      fr = std::frexp(a, &ex);
-    }
-    std::int64_t r = roundHalfAway(fr * static_cast<double>(2 * lim));  // ldexp(fr, m + 1): exact
+    const double fr = std::frexp(a, &ex);
+    std::int64_t r = std::llround(std::ldexp(fr, m + 1));
     if (r == 2 * lim) {
       r = lim;
       ++ex;
     }
-    const std::int64_t block = ex - 1 - m;  // >= 0
-    code = lim + block * lim + (r - lim);
+    const std::int64_t code = lim + (ex - 1 - m) * lim + (r - lim);
+    return v < 0 ? -code : code;
   }
+  // Both cases computed, one selected (which case a coefficient is in follows no pattern). Above lim steps,
+  // a = fr 2^ex with fr in [0.5, 1) (frexp, from the exponent bits: a is normal there) and the mantissa
+  // llround(ldexp(fr, m + 1)).
+  const std::int64_t linear = roundHalfAway(a);
+  int ex = static_cast<int>(bits >> 52) - 1022;
+  const std::uint64_t frBits = (bits & ((std::uint64_t(1) << 52) - 1)) | (std::uint64_t(1022) << 52);
+  double fr;
+  std::memcpy(&fr, &frBits, 8);
+  std::int64_t r = roundHalfAway(fr * static_cast<double>(2 * lim));
+  const bool carry = r == 2 * lim;
+  r = carry ? lim : r;
+  ex += carry;
+  const std::int64_t scaled = lim + (ex - 1 - m) * lim + (r - lim);
+  const std::int64_t code = a < static_cast<double>(lim) ? linear : scaled;
   return v < 0 ? -code : code;
 }
+
 double coefficientValue(std::int64_t code, double step, int m) {
   const std::int64_t lim = std::int64_t(1) << m;
   const std::int64_t c = code < 0 ? -code : code;
@@ -678,18 +683,21 @@ struct ModelUse {
 /// Fills the model's cells (index, configuration, pairings, loops, corners, and the coefficients the chunks
 /// carry) and every vertex's loop neighbours, one pass per chunk; records each cell's faces (model-wide face
 /// index per cell face, kNone) when asked, and (writer) which model vertex and cells each vertex and face of
-/// the file carries (`use`). The model's tables are sized here. The pairings are the chunks'
+/// the file carries (`use`). The model's tables are sized here; its cells and corners are kept only with
+/// `cellTables` (a writer of a `fitted` model needs only the rest). The pairings are the chunks'
 /// (reader), or those of `source`'s cells (writer), whose cells must then be the ones the signs give.
 void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, CellFaces* cellFaces,
-               const Model* source, ModelUse* use, const std::string& name) {
+               const Model* source, ModelUse* use, bool cellTables, const std::string& name) {
   std::uint64_t corners = 0, vertices = 0;
   const std::uint64_t cells = placeCellRows(chunks, corners);
   if (corners > std::numeric_limits<std::uint32_t>::max()) throw Error(name + ": too many corners");
   if (source && source->cells.size() != cells)
     throw Error(name + ": the model cannot be written in format 2: its cells do not follow from its signs");
   for (const ChunkTopology& ch : chunks.list) vertices += ch.vertexKey.size();
-  resizeHuge(m.cells, cells);
-  resizeHuge(m.corners, corners);
+  if (cellTables) {
+    resizeHuge(m.cells, cells);
+    resizeHuge(m.corners, corners);
+  }
   resizeHuge(m.vertices, vertices);
   around.resize(vertices);
   if (cellFaces) cellFaces->resize(cells);
@@ -723,7 +731,8 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
       }
       const std::size_t at = rowAt + 3 * static_cast<std::size_t>(lx);
       const std::uint64_t c = cellAt++;
-      ModelCell& cell = m.cells[c];
+      ModelCell scratchCell;
+      ModelCell& cell = cellTables ? m.cells[c] : scratchCell;
       cell.index = {static_cast<std::uint32_t>(ch.origin[0] + lx),
                     static_cast<std::uint32_t>(ch.origin[1] + ly),
                     static_cast<std::uint32_t>(ch.origin[2] + lz)};
@@ -764,7 +773,8 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
       cell.loopSize = loops.loopSize;
       cell.firstCorner = static_cast<std::uint32_t>(cornerAt);
       const int n = loops.numCorners();
-      std::uint32_t* corner = &m.corners[cornerAt];
+      std::uint32_t scratchCorners[12];
+      std::uint32_t* corner = cellTables ? &m.corners[cornerAt] : scratchCorners;
       cornerAt += static_cast<std::uint64_t>(n);
       for (int k = 0; k < n; ++k) {
         corner[k] = links.vertexOn(loops.edges[static_cast<std::size_t>(k)], at);
@@ -1131,11 +1141,42 @@ void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, cons
       }
       auto& range = cellRows.at(j, k);
       range.first = range.second = static_cast<std::size_t>(it - m.cells.begin());
+      // The four point rows of this row of cells (nullptr: outside the region): a cell's two points on each
+      // are set with one word operation where both are inside the region and in the same word.
+      Word* rowKnown[4];
+      Word* rowSign[4];
+      for (int d = 0; d < 4; ++d) {
+        const std::int64_t y = j + (d & 1), z = k + (d >> 1);
+        const bool inside = y >= r.lo[1] && y < r.lo[1] + r.n[1] && z >= r.lo[2] && z < r.lo[2] + r.n[2];
+        const std::size_t at = inside ? static_cast<std::size_t>(r.rowIndex(y, z)) * W : 0;
+        rowKnown[d] = inside ? &known[at] : nullptr;
+        rowSign[d] = inside ? &ch.sign[at] : nullptr;
+      }
       for (; it != m.cells.end() && it->index[1] == j && it->index[2] == k && it->index[0] < iEnd; ++it) {
         const ModelCell& cell = *it;
         const std::int64_t i = cell.index[0];
         range.second = static_cast<std::size_t>(it - m.cells.begin()) + 1;
-        for (int v = 0; v < 8; ++v) {
+        const std::int64_t lx = i - r.lo[0];
+        if (lx >= 0 && lx + 1 < r.n[0] && (lx & 63) != 63) {
+          const auto w = static_cast<std::size_t>(lx >> 6);
+          const int shift = static_cast<int>(lx & 63);
+          const Word both = Word(3) << shift;
+          Word values[4];
+          bool agree = true;
+          for (int d = 0; d < 4; ++d) {
+            values[d] = static_cast<Word>((cell.config >> (2 * d)) & 3) << shift;
+            if (rowKnown[d]) agree &= !(rowKnown[d][w] & (rowSign[d][w] ^ values[d]) & both);
+          }
+          if (agree) {
+            for (int d = 0; d < 4; ++d)
+              if (rowKnown[d]) {
+                rowKnown[d][w] |= both;
+                rowSign[d][w] |= values[d];
+              }
+            continue;
+          }
+        }
+        for (int v = 0; v < 8; ++v) {  // points in two words or outside the region, or a disagreement
           const auto o = cube::vertexCoords(v);
           const I3 p{i + o[0], j + o[1], k + o[2]};
           if (!r.contains(p)) continue;
@@ -1467,7 +1508,8 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   CellFaces cellFaces;
   {
     ModelUse use;
-    fillCells(chunks, sk, around, m.method == PatchMethod::Paper ? &cellFaces : nullptr, &m, &use, name);
+    const bool paper = m.method == PatchMethod::Paper;  // only its side coefficients need sk's cells
+    fillCells(chunks, sk, around, paper ? &cellFaces : nullptr, &m, &use, paper, name);
     tbb::parallel_for(std::size_t(0), chunks.list.size(),
                       [&](std::size_t i) { codeChunkItems(m, L, q, use, chunks.list[i], sources[i], name); });
   }
@@ -1978,7 +2020,7 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   const bool paper = m.method == PatchMethod::Paper;
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
-  fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, nullptr, name);
+  fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, nullptr, true, name);
   placeVertices(chunks, h.q.positionBits, m);
   decodeNormals(m, chunks, around, true, [&](std::size_t i) {
     return NormalCodeReader(chunks.list[i], h, m, chunkName(name, i, h.dir[i], chunks.L.B));
