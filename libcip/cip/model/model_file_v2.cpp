@@ -699,7 +699,7 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
     resizeHuge(m.corners, corners);
   }
   resizeHuge(m.vertices, vertices);
-  around.resize(vertices);
+  around.assign(vertices, LoopNeighbours{{kNone, kNone, kNone, kNone, kNone, kNone, kNone, kNone}});
   if (cellFaces) cellFaces->resize(cells);
   if (use) {
     std::uint64_t faces = 0;
@@ -707,10 +707,6 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
     use->vertex.assign(vertices, {kNone, kNone, kNone, kNone});
     use->face.assign(faces, {kNone, kNone});
   }
-  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
-    const ChunkTopology& ch = chunks.list[i];
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) around[ch.vertexBase + v].v.fill(kNone);
-  });
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
     LinkLayers links(chunks, i);
