@@ -1413,6 +1413,44 @@ void compressStreams(ChunkTopology& ch, int level, std::vector<std::uint8_t>& ou
   }
 }
 
+/// The keys of the bricks that get a chunk, increasing: those with cells, and the bricks above them that own
+/// their upper edges and faces. Cells come in grid order, so a brick is listed once per run of its cells in a
+/// row; only cells on a brick's upper faces look further.
+std::vector<std::int64_t> chunkKeys(const Model& m, const Layout& L) {
+  std::vector<std::int64_t> keys;
+  std::int64_t lastKey = -1, rowJ = -1, rowK = -1, xEnd = 0, bx = 0, by = 0, bz = 0;
+  bool topY = false, topZ = false;
+  for (const ModelCell& c : m.cells) {
+    const I3 idx{c.index[0], c.index[1], c.index[2]};
+    if (idx[1] != rowJ || idx[2] != rowK) {
+      rowJ = idx[1];
+      rowK = idx[2];
+      by = rowJ / L.B;
+      bz = rowK / L.B;
+      topY = rowJ % L.B == L.B - 1;
+      topZ = rowK % L.B == L.B - 1;
+      xEnd = 0;
+    }
+    if (idx[0] >= xEnd || idx[0] < xEnd - L.B) {
+      bx = idx[0] / L.B;
+      xEnd = (bx + 1) * L.B;
+    }
+    const I3 b{bx, by, bz};
+    const std::int64_t own = L.key(b);
+    if (own != lastKey) keys.push_back(lastKey = own);
+    if (!topY && !topZ && idx[0] != xEnd - 1) continue;
+    for (int d = 1; d < 8; ++d) {
+      const auto o = cube::vertexCoords(d);
+      if ((o[0] && idx[0] != xEnd - 1) || (o[1] && !topY) || (o[2] && !topZ)) continue;
+      const I3 pb = L.pointBrick({idx[0] + o[0], idx[1] + o[1], idx[2] + o[2]});
+      if (pb != b) keys.push_back(L.key(pb));
+    }
+  }
+  std::sort(keys.begin(), keys.end());
+  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  return keys;
+}
+
 void checkOptions(const ModelFileV2Options& q) {
   if (q.brick < 8 || q.brick > 128) throw Error("model format 2: brick size must be in 8..128");
   if (q.positionBits < 4 || q.positionBits > 16)
@@ -1443,42 +1481,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   for (int a = 0; a < 3; ++a) L.nb[a] = (L.dims[a] - 1 + L.B - 1) / L.B;
   for (double v : {m.geometry.origin[0], m.geometry.origin[1], m.geometry.origin[2], m.isovalue})
     if (!std::isfinite(v)) throw Error("model format 2: the header has a non-finite number");
-  // Bricks with cells, and the bricks above them that own their upper edges and faces. Cells come in grid
-  // order, so a brick is listed once per run of its cells in a row; only cells on a brick's upper faces
-  // look further.
-  std::vector<std::int64_t> keys;
-  {
-    std::int64_t lastKey = -1, rowJ = -1, rowK = -1, xEnd = 0, bx = 0, by = 0, bz = 0;
-    bool topY = false, topZ = false;
-    for (const ModelCell& c : m.cells) {
-      const I3 idx{c.index[0], c.index[1], c.index[2]};
-      if (idx[1] != rowJ || idx[2] != rowK) {
-        rowJ = idx[1];
-        rowK = idx[2];
-        by = rowJ / L.B;
-        bz = rowK / L.B;
-        topY = rowJ % L.B == L.B - 1;
-        topZ = rowK % L.B == L.B - 1;
-        xEnd = 0;
-      }
-      if (idx[0] >= xEnd || idx[0] < xEnd - L.B) {
-        bx = idx[0] / L.B;
-        xEnd = (bx + 1) * L.B;
-      }
-      const I3 b{bx, by, bz};
-      const std::int64_t own = L.key(b);
-      if (own != lastKey) keys.push_back(lastKey = own);
-      if (!topY && !topZ && idx[0] != xEnd - 1) continue;
-      for (int d = 1; d < 8; ++d) {
-        const auto o = cube::vertexCoords(d);
-        if ((o[0] && idx[0] != xEnd - 1) || (o[1] && !topY) || (o[2] && !topZ)) continue;
-        const I3 pb = L.pointBrick({idx[0] + o[0], idx[1] + o[1], idx[2] + o[2]});
-        if (pb != b) keys.push_back(L.key(pb));
-      }
-    }
-  }
-  std::sort(keys.begin(), keys.end());
-  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  const std::vector<std::int64_t> keys = chunkKeys(m, L);
   chunks.keys = keys;
   chunks.list.resize(keys.size());
   for (std::size_t i = 0; i < keys.size(); ++i) {
@@ -1575,9 +1578,8 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
       for (std::int64_t c : src.cell)
         putVarint(ch.streams[kCentrals], zigzag(coefficientCode(m.cells[static_cast<std::size_t>(c)].central,
                                                                 q.centralStep, q.centralMantissa)));
+    compressStreams(ch, q.zstdLevel, chunkBytes[i]);
   });
-  tbb::parallel_for(std::size_t(0), chunks.list.size(),
-                    [&](std::size_t i) { compressStreams(chunks.list[i], q.zstdLevel, chunkBytes[i]); });
   // Header, directory, chunks.
   std::vector<std::uint8_t> out;
   std::size_t total = 0;
