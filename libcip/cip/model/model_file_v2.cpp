@@ -1,5 +1,6 @@
 #include "cip/model/model_file_v2.h"
 
+#include <emmintrin.h>
 #include <tbb/parallel_for.h>
 #include <zstd.h>
 
@@ -100,6 +101,29 @@ class StreamReader {
     if (v >> 63) fail("has a number out of range");
     return unzigzag(v);
   }
+  /// n signed numbers into out: svarint() n times, with the common one- and two-byte numbers read without a
+  /// branch on their length.
+  void svarints(std::size_t n, std::int64_t* out) {
+    const std::uint8_t* data = b_->data();
+    const std::size_t size = b_->size();
+    std::size_t pos = pos_;
+    for (std::size_t i = 0; i < n; ++i) {
+      std::uint64_t v;
+      const std::uint64_t b0 = pos < size ? data[pos] : 0x80, b1 = pos + 1 < size ? data[pos + 1] : 0x80;
+      const std::uint64_t two = b0 >> 7;
+      if (!(two & (b1 >> 7))) {
+        v = (b0 & 0x7F) | ((b1 & (0 - two)) << 7);
+        pos += 1 + two;
+      } else {
+        pos_ = pos;
+        v = varint();
+        if (v >> 63) fail("has a number out of range");
+        pos = pos_;
+      }
+      out[i] = unzigzag(v);
+    }
+    pos_ = pos;
+  }
   std::uint8_t byte() {
     if (pos_ >= b_->size()) fail("ends early");
     return (*b_)[pos_++];
@@ -128,47 +152,73 @@ std::uint32_t crc(const std::uint8_t* data, std::size_t size) {
 
 // ---- quantisers (shared by writer and reader: the reader's values are the writer's, bit for bit) ---------
 
+/// std::llround(x), without the library call where |x| < 2^52 (there x - trunc(x) is exact).
+std::int64_t roundHalfAway(double x) {
+  const double a = std::abs(x);
+  if (!(a < 4503599627370496.0)) return std::llround(x);
+  const auto i = static_cast<std::int64_t>(a);
+  const std::int64_t r = i + (a - static_cast<double>(i) >= 0.5);
+  return x < 0 ? -r : r;
+}
+
 /// A float-like code: linear steps of `step` up to 2^m steps, then m bits of relative precision.
 std::int64_t coefficientCode(double w, double step, int m) {
   const double v = w / step;
   const double a = std::abs(v);
   const std::int64_t lim = std::int64_t(1) << m;
-  std::int64_t code;
-  if (a < static_cast<double>(lim)) {
-    code = std::llround(a);
-  } else {
+  std::uint64_t bits;
+  std::memcpy(&bits, &a, 8);
+  if ((bits >> 52) >= 0x7FF) {  // not finite: as frexp and llround take it
     int ex;
-    const double fr = std::frexp(a, &ex);  // a = fr 2^ex, fr in [0.5, 1)
+    const double fr = std::frexp(a, &ex);
     std::int64_t r = std::llround(std::ldexp(fr, m + 1));
     if (r == 2 * lim) {
       r = lim;
       ++ex;
     }
-    const std::int64_t block = ex - 1 - m;  // >= 0
-    code = lim + block * lim + (r - lim);
+    const std::int64_t code = lim + (ex - 1 - m) * lim + (r - lim);
+    return v < 0 ? -code : code;
   }
+  // Both cases computed, one selected (which case a coefficient is in follows no pattern). Above lim steps,
+  // a = fr 2^ex with fr in [0.5, 1) (frexp, from the exponent bits: a is normal there) and the mantissa
+  // llround(ldexp(fr, m + 1)).
+  const std::int64_t linear = roundHalfAway(a);
+  int ex = static_cast<int>(bits >> 52) - 1022;
+  const std::uint64_t frBits = (bits & ((std::uint64_t(1) << 52) - 1)) | (std::uint64_t(1022) << 52);
+  double fr;
+  std::memcpy(&fr, &frBits, 8);
+  std::int64_t r = roundHalfAway(fr * static_cast<double>(2 * lim));
+  const bool carry = r == 2 * lim;
+  r = carry ? lim : r;
+  ex += carry;
+  const std::int64_t scaled = lim + (ex - 1 - m) * lim + (r - lim);
+  const std::int64_t code = a < static_cast<double>(lim) ? linear : scaled;
   return v < 0 ? -code : code;
 }
+
 double coefficientValue(std::int64_t code, double step, int m) {
   const std::int64_t lim = std::int64_t(1) << m;
   const std::int64_t c = code < 0 ? -code : code;
+  // Below lim: c itself (times 2^0); above: lim + rem times 2^block. A product by a power of two is exact, as
+  // ldexp is (the power is built from its exponent bits while it is a normal number). Selects, not branches:
+  // which case a code is in follows no pattern.
+  const bool linear = c < lim;
+  const std::int64_t block = linear ? 0 : (c - lim) >> m;
+  const std::int64_t mantissa = linear ? c : lim + ((c - lim) & (lim - 1));
   double a;
-  if (c < lim) {
-    a = static_cast<double>(c);
+  if (block < 1000) {
+    const std::uint64_t bits = static_cast<std::uint64_t>(1023 + block) << 52;
+    double power;
+    std::memcpy(&power, &bits, 8);
+    a = static_cast<double>(mantissa) * power;
   } else {
-    const std::int64_t block = (c - lim) >> m, rem = (c - lim) & (lim - 1);
-    // lim + rem times 2^block: a product by a power of two is exact, as ldexp is (the power is built from
-    // its exponent bits while it is a normal number).
-    if (block < 1000) {
-      const std::uint64_t bits = static_cast<std::uint64_t>(1023 + block) << 52;
-      double power;
-      std::memcpy(&power, &bits, 8);
-      a = static_cast<double>(lim + rem) * power;
-    } else {
-      a = std::ldexp(static_cast<double>(lim + rem), static_cast<int>(std::min<std::int64_t>(block, 4000)));
-    }
+    a = std::ldexp(static_cast<double>(mantissa), static_cast<int>(std::min<std::int64_t>(block, 4000)));
   }
-  return (code < 0 ? -a : a) * step;
+  std::uint64_t bits;  // -a where the code is negative: its sign bit flipped
+  std::memcpy(&bits, &a, 8);
+  bits ^= static_cast<std::uint64_t>(code < 0) << 63;
+  std::memcpy(&a, &bits, 8);
+  return a * step;
 }
 
 void octEncode(const Vec3& n, double& u, double& v) {
@@ -510,133 +560,101 @@ std::uint64_t placeCellRows(Chunks& chunks, std::uint64_t& corners) {
   return cells;
 }
 
-/// One owned point row's entries (vertices or faces) in the chunk that owns it, walked with increasing x.
-class RowCursor {
+/// The vertices and faces around a chunk's cells, looked up by point: for two point layers (z = lz and
+/// lz + 1 of the chunk's cells), per point (x, y) of the cells' box and axis, the model-wide index of the
+/// vertex on the crossed edge from there, and the face across it (the owning chunk's slot, see owner(), in
+/// the top byte, its index there below), or kNone. Each layer is filled once from the point rows of the
+/// chunks that own them (this one, or those above it), so a cell's items are one load each.
+class LinkLayers {
  public:
-  void reset(const ChunkTopology* owner, const std::vector<std::uint32_t>& keys,
-             const std::vector<std::uint32_t>& rowStart, std::int64_t B, std::int64_t ly, std::int64_t lz) {
-    if (!owner) {
-      at_ = end_ = 0;
-      return;
+  LinkLayers(const Chunks& chunks, std::size_t index) : ch_(chunks.list[index]), B_(chunks.L.B) {
+    for (int d = 0; d < 8; ++d)
+      nb_[d] =
+          d ? chunks.find({ch_.brick[0] + (d & 1), ch_.brick[1] + ((d >> 1) & 1), ch_.brick[2] + (d >> 2)})
+            : &ch_;
+    P_ = static_cast<std::size_t>(ch_.cellCount[0] + 1);
+    S_ = 3 * P_ * static_cast<std::size_t>(ch_.cellCount[1] + 1);
+    vertex_.assign(2 * S_, kNone);
+    face_.assign(2 * S_, kNone);
+  }
+  /// The chunk that owns an item whose face value is `value`.
+  const ChunkTopology* owner(std::uint32_t value) const { return nb_[value >> 24]; }
+  /// Makes point layers lz and lz + 1 present, and sets the bases of each cell edge's and face's lookup.
+  void moveTo(std::int64_t lz) {
+    for (std::int64_t pz = lz; pz <= lz + 1; ++pz) {
+      const auto slot = static_cast<std::size_t>(pz & 1);
+      if (held_[slot] == pz) continue;
+      if (held_[slot] >= 0) fill(slot, held_[slot], true);
+      fill(slot, pz, false);
+      held_[slot] = pz;
     }
-    const auto row = static_cast<std::size_t>(ly + (B + 1) * lz);
-    key_ = keys.data();
-    at_ = rowStart[row];
-    end_ = rowStart[row + 1];
-    base_ = static_cast<std::uint32_t>(3 * (B + 1) * (ly + (B + 1) * lz));
+    for (int e = 0; e < 12; ++e) {
+      const int axis = cube::edgeAxis(e), a = e & 1, b = (e >> 1) & 1;
+      const auto o = cube::otherAxes(axis);
+      int c[3] = {0, 0, 0};
+      c[o[0]] = a;
+      c[o[1]] = b;
+      edge_[e] = vertex_.data() + offset(lz, c, axis);
+    }
+    for (int f = 0; f < 6; ++f) {
+      int c[3] = {0, 0, 0};
+      c[f / 2] = f & 1;
+      faceAt_[f] = face_.data() + offset(lz, c, f / 2);
+    }
   }
-  /// The owner's index of each entry of points lx .. lx + count / 3 - 1, at out[3 (x - lx) + axis].
-  void gather(std::uint32_t lx, std::uint32_t count, std::uint32_t* out) {
-    const std::uint32_t first = base_ + 3 * lx;
-    while (at_ < end_ && key_[at_] < first) ++at_;
-    for (std::uint32_t j = at_; j < end_ && key_[j] < first + count; ++j) out[key_[j] - first] = j;
+  /// The table position of cell (lx, ly) of the current layer.
+  std::size_t cell(std::int64_t lx, std::int64_t ly) const {
+    return 3 * (P_ * static_cast<std::size_t>(ly) + static_cast<std::size_t>(lx));
   }
+  std::uint32_t vertexOn(int e, std::size_t at) const { return edge_[e][at]; }
+  std::uint32_t faceOn(int f, std::size_t at) const { return faceAt_[f][at]; }
 
  private:
-  const std::uint32_t* key_ = nullptr;
-  std::uint32_t at_ = 0, end_ = 0, base_ = 0;
-};
-
-/// Where an item at a cell's point offset (dx, dy, dz) along `axis` sits in the lookup tables of a cell:
-/// table (dy + 2 dz), entry 3 dx + axis.
-constexpr int itemSlot(int dx, int dy, int dz, int axis) {
-  return 6 * (dy + 2 * dz) + 3 * dx + axis;
-}
-constexpr int edgeSlot(int e) {
-  const int axis = cube::edgeAxis(e), a = e & 1, b = (e >> 1) & 1;
-  const auto o = cube::otherAxes(axis);
-  int c[3] = {0, 0, 0};
-  c[o[0]] = a;
-  c[o[1]] = b;
-  return itemSlot(c[0], c[1], c[2], axis);
-}
-constexpr int faceSlot(int f) {
-  int c[3] = {0, 0, 0};
-  c[f / 2] = f & 1;
-  return itemSlot(c[0], c[1], c[2], f / 2);
-}
-
-/// The vertices and faces of one cell: for every point of the cell and axis, the owning chunk's index of the
-/// crossed edge and face from there (kNone where there is none).
-struct CellItems {
-  std::array<std::uint32_t, 24> vertex, face;
-  std::array<const ChunkTopology*, 8> owner;  ///< per table and dx
-  /// Model-wide index of the vertex on cell edge e, or kNone.
-  std::uint32_t vertexOn(int e) const {
-    static constexpr std::array<std::uint8_t, 12> kSlot = [] {
-      std::array<std::uint8_t, 12> t{};
-      for (int i = 0; i < 12; ++i) t[static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(edgeSlot(i));
-      return t;
-    }();
-    const int s = kSlot[static_cast<std::size_t>(e)];
-    const std::uint32_t v = vertex[static_cast<std::size_t>(s)];
-    return v == kNone ? kNone
-                      : static_cast<std::uint32_t>(owner[static_cast<std::size_t>(s / 3)]->vertexBase + v);
+  std::size_t offset(std::int64_t lz, const int* c, int axis) const {
+    return S_ * static_cast<std::size_t>((lz + c[2]) & 1) + 3 * (P_ * static_cast<std::size_t>(c[1]) + c[0]) +
+           static_cast<std::size_t>(axis);
   }
-  /// The chunk that owns cell face f, and its index there (kNone: none).
-  std::pair<const ChunkTopology*, std::uint32_t> faceOn(int f) const {
-    static constexpr std::array<std::uint8_t, 6> kSlot = {faceSlot(0), faceSlot(1), faceSlot(2),
-                                                          faceSlot(3), faceSlot(4), faceSlot(5)};
-    const int s = kSlot[static_cast<std::size_t>(f)];
-    return {owner[static_cast<std::size_t>(s / 3)], face[static_cast<std::size_t>(s)]};
-  }
-};
-
-/// Calls visit(j, cell, items) for every cell j of chunk `index` in order, with the vertices and faces around
-/// it looked up in the chunks that own them (this one, or those above it): a cursor per point row walks
-/// each row's entries once.
-template <class Visit>
-void linkCells(const Chunks& chunks, std::size_t index, Visit&& visit) {
-  const ChunkTopology& ch = chunks.list[index];
-  const std::int64_t B = chunks.L.B;
-  const ChunkTopology* nb[2][2][2];
-  for (int d = 0; d < 8; ++d)
-    nb[d & 1][(d >> 1) & 1][d >> 2] =
-        d ? chunks.find({ch.brick[0] + (d & 1), ch.brick[1] + ((d >> 1) & 1), ch.brick[2] + (d >> 2)}) : &ch;
-  RowCursor vMain[4], fMain[4], vNext[4], fNext[4];
-  const ChunkTopology* rowOwner[4][2] = {};
-  std::uint32_t currentRow = kNone;
-  CellItems items;
-  for (std::size_t j = 0; j < ch.cells.size(); ++j) {
-    const std::uint32_t local = ch.cells[j];
-    const auto lx = static_cast<std::uint32_t>(cellX(local));
-    const std::int64_t ly = cellY(local), lz = cellZ(local);
-    if (local >> 8 != currentRow) {
-      currentRow = local >> 8;
-      for (int d = 0; d < 4; ++d) {
-        const int dy = d & 1, dz = d >> 1;
-        const bool upY = dy && ly + 1 >= ch.ownedCount[1], upZ = dz && lz + 1 >= ch.ownedCount[2];
-        const std::int64_t py = upY ? 0 : ly + dy, pz = upZ ? 0 : lz + dz;
-        rowOwner[d][0] = nb[0][upY][upZ];
-        rowOwner[d][1] = nb[1][upY][upZ];
-        for (int dx = 0; dx < 2; ++dx) {
-          const ChunkTopology* o = rowOwner[d][dx];
-          RowCursor& v = dx ? vNext[d] : vMain[d];
-          RowCursor& f = dx ? fNext[d] : fMain[d];
-          if (o) v.reset(o, o->vertexKey, o->vertexRow, B, py, pz);
-          if (o) f.reset(o, o->faceKey, o->faceRow, B, py, pz);
-          if (!o) v.reset(nullptr, {}, {}, B, 0, 0), f.reset(nullptr, {}, {}, B, 0, 0);
+  /// Writes (or clears) point layer pz into table slot `slot`.
+  void fill(std::size_t slot, std::int64_t pz, bool clear) {
+    const bool zUp = pz >= ch_.ownedCount[2];
+    const std::int64_t oz = zUp ? 0 : pz;
+    const bool xNext = ch_.ownedCount[0] <= ch_.cellCount[0];  // the last point column is the next brick's
+    for (std::int64_t py = 0; py <= ch_.cellCount[1]; ++py) {
+      const bool yUp = py >= ch_.ownedCount[1];
+      const auto row = static_cast<std::size_t>((yUp ? 0 : py) + (B_ + 1) * oz);
+      const auto keyBase = static_cast<std::uint32_t>(3 * (B_ + 1) * row);
+      const std::size_t at = slot * S_ + 3 * P_ * static_cast<std::size_t>(py);
+      for (int xUp = 0; xUp < (xNext ? 2 : 1); ++xUp) {
+        const int d = xUp | (yUp ? 2 : 0) | (zUp ? 4 : 0);
+        const ChunkTopology* o = nb_[d];
+        if (!o) continue;
+        // Entries of the owner's row: all of them, or (from the next brick) those of its first point.
+        const std::uint32_t limit = xUp ? 3 : std::numeric_limits<std::uint32_t>::max();
+        std::uint32_t* vt = &vertex_[at + (xUp ? 3 * (P_ - 1) : 0)];
+        for (std::uint32_t j = o->vertexRow[row]; j < o->vertexRow[row + 1]; ++j) {
+          const std::uint32_t k = o->vertexKey[j] - keyBase;
+          if (k >= limit) break;
+          vt[k] = clear ? kNone : static_cast<std::uint32_t>(o->vertexBase + j);
+        }
+        std::uint32_t* ft = &face_[at + (xUp ? 3 * (P_ - 1) : 0)];
+        for (std::uint32_t j = o->faceRow[row]; j < o->faceRow[row + 1]; ++j) {
+          const std::uint32_t k = o->faceKey[j] - keyBase;
+          if (k >= limit) break;
+          ft[k] = clear ? kNone : static_cast<std::uint32_t>(d) << 24 | j;
         }
       }
     }
-    items.vertex.fill(kNone);
-    items.face.fill(kNone);
-    const bool xNext = lx + 1 >= ch.ownedCount[0];  // the cell's upper x points belong to the next brick
-    // A cell's edges start at all its points but (1, 1, 1) (point row 3 only at x), its faces at (0, 0, 0)
-    // and one step up each axis: only those entries are looked up.
-    for (int d = 0; d < 4; ++d) {
-      const auto t = static_cast<std::size_t>(6 * d);
-      const bool upperX = d < 3;  // the row has edges (and row 0 faces) at the cell's upper x point
-      vMain[d].gather(lx, upperX && !xNext ? 6 : 3, &items.vertex[t]);
-      if (upperX && xNext) vNext[d].gather(0, 3, &items.vertex[t + 3]);
-      if (d < 3) fMain[d].gather(lx, d == 0 && !xNext ? 6 : 3, &items.face[t]);
-      if (d == 0 && xNext) fNext[d].gather(0, 3, &items.face[t + 3]);
-      items.owner[static_cast<std::size_t>(2 * d)] = rowOwner[d][0];
-      items.owner[static_cast<std::size_t>(2 * d + 1)] = xNext ? rowOwner[d][1] : rowOwner[d][0];
-    }
-    visit(j, I3{ch.origin[0] + lx, ch.origin[1] + ly, ch.origin[2] + lz}, items);
   }
-}
+
+  const ChunkTopology& ch_;
+  std::int64_t B_;
+  const ChunkTopology* nb_[8];
+  std::size_t P_ = 0, S_ = 0;  ///< points per table row, entries per layer
+  std::vector<std::uint32_t> vertex_, face_;
+  std::int64_t held_[2] = {-1, -1};
+  const std::uint32_t* edge_[12] = {};
+  const std::uint32_t* faceAt_[6] = {};
+};
 
 /// For every vertex and each of the four cells around its edge, in grid order, the vertices after and before
 /// it in that cell's loop (kNone where the cell is not in the model): what its normal is predicted from.
@@ -679,77 +697,107 @@ void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
   });
 }
 
+/// Which model vertex each vertex of the file is, and which model cells each face of the file bounds: per
+/// vertex the model vertex of each cell around its edge (in grid order), per face the cell on each side.
+struct ModelUse {
+  std::vector<std::array<std::uint32_t, 4>> vertex;
+  std::vector<std::array<std::uint32_t, 2>> face;
+};
+
 /// Fills the model's cells (index, configuration, pairings, loops, corners, and the coefficients the chunks
 /// carry) and every vertex's loop neighbours, one pass per chunk; records each cell's faces (model-wide face
-/// index per cell face, kNone) when asked. The model's tables are sized here. The pairings are the chunks'
+/// index per cell face, kNone) when asked, and (writer) which model vertex and cells each vertex and face of
+/// the file carries (`use`). The model's tables are sized here; its cells and corners are kept only with
+/// `cellTables` (a writer of a `fitted` model needs only the rest). The pairings are the chunks'
 /// (reader), or those of `source`'s cells (writer), whose cells must then be the ones the signs give.
 void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, CellFaces* cellFaces,
-               const Model* source, const std::string& name) {
+               const Model* source, ModelUse* use, bool cellTables, const std::string& name) {
   std::uint64_t corners = 0, vertices = 0;
   const std::uint64_t cells = placeCellRows(chunks, corners);
   if (corners > std::numeric_limits<std::uint32_t>::max()) throw Error(name + ": too many corners");
   if (source && source->cells.size() != cells)
     throw Error(name + ": the model cannot be written in format 2: its cells do not follow from its signs");
   for (const ChunkTopology& ch : chunks.list) vertices += ch.vertexKey.size();
-  resizeHuge(m.cells, cells);
-  resizeHuge(m.corners, corners);
+  if (cellTables) {
+    resizeHuge(m.cells, cells);
+    resizeHuge(m.corners, corners);
+  }
   resizeHuge(m.vertices, vertices);
-  around.resize(vertices);
+  around.assign(vertices, LoopNeighbours{{kNone, kNone, kNone, kNone, kNone, kNone, kNone, kNone}});
   if (cellFaces) cellFaces->resize(cells);
+  if (use) {
+    std::uint64_t faces = 0;
+    for (const ChunkTopology& ch : chunks.list) faces += ch.faceKey.size();
+    use->vertex.assign(vertices, {kNone, kNone, kNone, kNone});
+    use->face.assign(faces, {kNone, kNone});
+  }
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) around[ch.vertexBase + v].v.fill(kNone);
-  });
-  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
-    const ChunkTopology& ch = chunks.list[i];
-    std::size_t row = kNone;
+    LinkLayers links(chunks, i);
+    std::uint32_t row = kNone;
+    std::int64_t layer = -1;
     std::uint64_t cellAt = 0, cornerAt = 0;
-    linkCells(chunks, i, [&](std::size_t j, const I3& idx, const CellItems& items) {
+    std::size_t rowAt = 0;
+    for (std::size_t j = 0; j < ch.cells.size(); ++j) {
       const std::uint32_t local = ch.cells[j];
-      const auto r = static_cast<std::size_t>(cellY(local) + ch.cellCount[1] * cellZ(local));
-      if (r != row) {
-        row = r;
+      const std::int64_t lx = cellX(local), ly = cellY(local), lz = cellZ(local);
+      if (local >> 8 != row) {
+        row = local >> 8;
+        const auto r = static_cast<std::size_t>(ly + ch.cellCount[1] * lz);
         cellAt = ch.rowModelCell[r];
         cornerAt = ch.rowCorners[r];
+        if (lz != layer) links.moveTo(layer = lz);
+        rowAt = links.cell(0, ly);
       }
+      const std::size_t at = rowAt + 3 * static_cast<std::size_t>(lx);
       const std::uint64_t c = cellAt++;
-      ModelCell& cell = m.cells[c];
-      for (int a = 0; a < 3; ++a)
-        cell.index[static_cast<std::size_t>(a)] = static_cast<std::uint32_t>(idx[a]);
+      ModelCell scratchCell;
+      ModelCell& cell = cellTables ? m.cells[c] : scratchCell;
+      cell.index = {static_cast<std::uint32_t>(ch.origin[0] + lx),
+                    static_cast<std::uint32_t>(ch.origin[1] + ly),
+                    static_cast<std::uint32_t>(ch.origin[2] + lz)};
       cell.config = ch.config[j];
-      cell.pairing03 = 0;
-      if (source && (source->cells[c].index != cell.index || source->cells[c].config != cell.config))
+      std::uint8_t pairing = 0;
+      if (source &&
+          (source->cells[c].index[0] != cell.index[0] || source->cells[c].index[1] != cell.index[1] ||
+           source->cells[c].index[2] != cell.index[2] || source->cells[c].config != cell.config))
         throw Error(name +
                     ": the model cannot be written in format 2: its cells do not follow from its signs");
       const std::uint8_t faces = kCrossedFaces[cell.config];
       for (int f = 0; f < 6; ++f) {
         double w = 0;
         if ((faces >> f) & 1) {
-          const auto [owner, fl] = items.faceOn(f);
-          if (fl == kNone)
+          const std::uint32_t value = links.faceOn(f, at);
+          if (value == kNone)
             throw Error(name + ": damaged model file: a crossed face of cell " + std::to_string(c) +
                         " is missing");
+          const ChunkTopology* owner = links.owner(value);
+          const std::uint32_t fl = value & 0xFFFFFF;
           const bool paired = source ? (source->cells[c].pairing03 >> f) & 1 : owner->facePairing[fl];
           if (paired && cube::isAmbiguousFace(cell.config, f))
-            cell.pairing03 = static_cast<std::uint8_t>(cell.pairing03 | (1u << f));
+            pairing = static_cast<std::uint8_t>(pairing | (1u << f));
           if (!owner->side.empty()) w = owner->side[fl];
           if (cellFaces)
             (*cellFaces)[c][static_cast<std::size_t>(f)] = static_cast<std::uint32_t>(owner->faceBase + fl);
+          if (use)
+            use->face[owner->faceBase + fl][static_cast<std::size_t>(f & 1)] = static_cast<std::uint32_t>(c);
         } else if (cellFaces) {
           (*cellFaces)[c][static_cast<std::size_t>(f)] = kNone;
         }
         cell.faceCoefficient[static_cast<std::size_t>(f)] = w;
       }
+      cell.pairing03 = pairing;
       cell.central = ch.central.empty() ? 0.0 : ch.central[j];
-      const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
+      const CellLoops loops = buildCellLoops(cell.config, pairing);
       cell.numLoops = static_cast<std::uint8_t>(loops.numLoops);
       cell.loopSize = loops.loopSize;
       cell.firstCorner = static_cast<std::uint32_t>(cornerAt);
       const int n = loops.numCorners();
-      std::uint32_t* corner = &m.corners[cornerAt];
+      std::uint32_t scratchCorners[12];
+      std::uint32_t* corner = cellTables ? &m.corners[cornerAt] : scratchCorners;
       cornerAt += static_cast<std::uint64_t>(n);
       for (int k = 0; k < n; ++k) {
-        corner[k] = items.vertexOn(loops.edges[static_cast<std::size_t>(k)]);
+        corner[k] = links.vertexOn(loops.edges[static_cast<std::size_t>(k)], at);
         if (corner[k] == kNone)
           throw Error(name + ": damaged model file: a crossed edge of cell " + std::to_string(c) +
                       " has no vertex");
@@ -762,30 +810,13 @@ void fillCells(Chunks& chunks, Model& m, std::vector<LoopNeighbours>& around, Ce
           std::uint32_t* slot = &around[corner[start + k]].v[static_cast<std::size_t>(2 * aroundSlot(e))];
           slot[0] = corner[start + (k + 1 < size ? k + 1 : 0)];
           slot[1] = corner[start + (k > 0 ? k - 1 : size - 1)];
+          if (use)
+            use->vertex[corner[start + k]][static_cast<std::size_t>(aroundSlot(e))] =
+                source->corners[source->cells[c].firstCorner + static_cast<std::uint32_t>(start + k)];
         }
       }
-    });
+    }
   });
-}
-
-/// The predicted normal of vertex g: the normal of the marching-cubes polygons around it (the sum of cross
-/// products of its loop neighbours, cells in grid order), pointing to the positive side.
-Vec3 predictedNormal(const Model& m, const LoopNeighbours& around, std::size_t g, int axis, bool startAbove) {
-  const Vec3& p = m.vertices[g].position;
-  Vec3 sum = Vec3::Zero();
-  for (int s = 0; s < 4; ++s) {
-    const std::uint32_t next = around.v[static_cast<std::size_t>(2 * s)];
-    if (next == kNone) continue;
-    const Vec3& a = m.vertices[next].position;
-    const Vec3& b = m.vertices[around.v[static_cast<std::size_t>(2 * s + 1)]].position;
-    sum += (a - p).cross(b - p);
-  }
-  Vec3 towards = Vec3::Zero();
-  towards[axis] = startAbove ? -1.0 : 1.0;
-  const double len = sum.norm();
-  Vec3 n = (len > 0 && std::isfinite(len)) ? Vec3(sum / len) : towards;
-  if (n.dot(towards) < 0) n = -n;
-  return n;
 }
 
 /// The stored normal of a vertex from its prediction and residual code.
@@ -805,18 +836,16 @@ Vec3 normalFromCode(const Vec3& pred, std::int64_t qu, std::int64_t qv, double s
   return orientCornerNormal(n, towards);
 }
 
-/// The residual code of normal n against its prediction. Where the reader's corrections (normalFromCode: the
-/// grid-point rule, the minimal angle to the edge) may have moved a stored normal off its code's direction,
-/// the codes around are searched for one that decodes to n exactly, so that writing a model read from a file
-/// gives the same file.
-void normalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uint8_t flags, std::int64_t& qu,
-                std::int64_t& qv) {
-  Vec3 b1, b2;
-  frameOf(pred, b1, b2);
+/// The residual code of normal n against its prediction (and its frame, frameOf). Where the reader's
+/// corrections (normalFromCode: the grid-point rule, the minimal angle to the edge) may have moved a stored
+/// normal off its code's direction, the codes around are searched for one that decodes to n exactly, so that
+/// writing a model read from a file gives the same file.
+void normalCode(const Vec3& pred, const Vec3& b1, const Vec3& b2, const Vec3& n, double step, int axis,
+                std::uint8_t flags, std::int64_t& qu, std::int64_t& qv) {
   double u, v;
   octEncode(Vec3(n.dot(b1), n.dot(b2), n.dot(pred)), u, v);
-  qu = std::llround(u / step);
-  qv = std::llround(v / step);
+  qu = roundHalfAway(u / step);
+  qv = roundHalfAway(v / step);
   const double towards = (flags & 32) ? -n[axis] : n[axis];
   if (!(flags & 64) && towards > 0.0501) return;
   if (normalFromCode(pred, qu, qv, step, axis, flags) == n) return;
@@ -829,24 +858,205 @@ void normalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uin
       }
 }
 
-/// Sets every vertex normal from its prediction and the residual code that `codeOf(chunk)` gives for each of
-/// the chunk's vertices (the reader reads it, the writer chooses it; refined vertices' codes are in their
-/// finer steps), then puts the full-precision normals.
+// ---- normals, several vertices at a time ----------------------------------------------------------------
+// A vertex's normal is predicted from its loop neighbours: the sum of the cross products (a - p) × (b - p) of
+// the vectors to its two neighbours in each cell around its edge (cells in grid order), divided by its norm
+// (the direction towards the positive side along the edge where that is not a positive finite number), and
+// turned to the positive side. The predictions, their frames and the decoded normals of a block of a chunk's
+// vertices are computed two vertices at a time (SSE2 lanes), with the same IEEE operations in the same order
+// as the scalar Eigen expressions of frameOf, octDecode, normalFromCode and orientCornerNormal (Vec3::norm,
+// normalized, cross, dot, ...): each lane's result is the scalar one bit for bit, so a file decodes to the
+// same model on any machine as it did before these were vectorised.
+
+using Lanes = double __attribute__((vector_size(16)));
+using LaneMask = std::int64_t __attribute__((vector_size(16)));
+constexpr std::size_t kLanes = 2;
+
+Lanes load(const double* p) {
+  Lanes v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+void store(double* p, Lanes v) {
+  std::memcpy(p, &v, sizeof v);
+}
+Lanes splat(double x) {
+  return Lanes{x, x};
+}
+Lanes sqrtLanes(Lanes x) {
+  return _mm_sqrt_pd(x);
+}
+Lanes absLanes(Lanes x) {
+  return _mm_andnot_pd(splat(-0.0), x);
+}
+/// Per lane: m ? a : b.
+Lanes select(LaneMask m, Lanes a, Lanes b) {
+  return m ? a : b;
+}
+/// (x, y, z) / sqrt(x² + y² + z²) where that square is positive (Vec3::normalized).
+void normalizeLanes(Lanes& x, Lanes& y, Lanes& z) {
+  const Lanes sq = (x * x + y * y) + z * z, len = sqrtLanes(sq);
+  const LaneMask positive = sq > splat(0.0);
+  x = select(positive, x / len, x);
+  y = select(positive, y / len, y);
+  z = select(positive, z / len, z);
+}
+
+/// Up to kSize vertices of one chunk on their way from their loop neighbours to their normals, one array per
+/// coordinate.
+struct NormalBlock {
+  static constexpr std::size_t kSize = 64;
+  std::size_t count = 0;
+  alignas(16) double sx[kSize], sy[kSize], sz[kSize];  ///< the sum of the cross products
+  alignas(16) double tx[kSize], ty[kSize], tz[kSize];  ///< towards the positive side along the edge
+  alignas(16) double px[kSize], py[kSize], pz[kSize];  ///< the prediction
+  alignas(16) double ax[kSize], ay[kSize], az[kSize];  ///< the frame's first axis
+  alignas(16) double bx[kSize], by[kSize], bz[kSize];  ///< its second
+  alignas(16) double u[kSize], v[kSize];               ///< the residual codes times the step
+  alignas(16) std::int64_t keepX[kSize], keepY[kSize], keepZ[kSize];  ///< -1: keep, 0: a zero component
+  alignas(16) double nx[kSize], ny[kSize], nz[kSize];                 ///< the normal
+};
+
+/// The block's sums of cross products (Eigen, cells in grid order) and the direction towards
+/// the positive side, for the chunk's vertices first .. first + b.count - 1.
+void sumBlock(const Model& m, const std::vector<LoopNeighbours>& around, const ChunkTopology& ch,
+              std::size_t first, NormalBlock& b) {
+  for (std::size_t k = 0; k < b.count; ++k) {
+    const std::size_t v = first + k, g = ch.vertexBase + v;
+    const Vec3& p = m.vertices[g].position;
+    Vec3 sum = Vec3::Zero();
+    const LoopNeighbours& nbr = around[g];
+    for (int s = 0; s < 4; ++s) {
+      const std::uint32_t next = nbr.v[static_cast<std::size_t>(2 * s)];
+      if (next == kNone) continue;
+      const Vec3& a = m.vertices[next].position;
+      const Vec3& c = m.vertices[nbr.v[static_cast<std::size_t>(2 * s + 1)]].position;
+      sum += (a - p).cross(c - p);
+    }
+    b.sx[k] = sum.x();
+    b.sy[k] = sum.y();
+    b.sz[k] = sum.z();
+    const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+    const double towards = (ch.vertexFlags[v] & 32) ? -1.0 : 1.0;
+    b.tx[k] = axis == 0 ? towards : 0.0;
+    b.ty[k] = axis == 1 ? towards : 0.0;
+    b.tz[k] = axis == 2 ? towards : 0.0;
+  }
+  for (std::size_t k = b.count; k < (b.count + kLanes - 1) / kLanes * kLanes; ++k) {  // a lane's padding
+    b.sx[k] = b.sy[k] = b.sz[k] = b.ty[k] = b.tz[k] = 0.0;
+    b.tx[k] = 1.0;
+  }
+}
+
+/// Predictions from the sums and their frames (frameOf).
+void predictBlock(NormalBlock& b) {
+  for (std::size_t k = 0; k < b.count; k += kLanes) {
+    const Lanes sx = load(b.sx + k), sy = load(b.sy + k), sz = load(b.sz + k);
+    const Lanes tx = load(b.tx + k), ty = load(b.ty + k), tz = load(b.tz + k);
+    const Lanes len = sqrtLanes((sx * sx + sy * sy) + sz * sz);
+    const LaneMask ok = (len > splat(0.0)) & (len <= splat(std::numeric_limits<double>::max()));
+    Lanes px = select(ok, sx / len, tx), py = select(ok, sy / len, ty), pz = select(ok, sz / len, tz);
+    const LaneMask flip = ((px * tx + py * ty) + pz * tz) < splat(0.0);
+    px = select(flip, -px, px);
+    py = select(flip, -py, py);
+    pz = select(flip, -pz, pz);
+    store(b.px + k, px);
+    store(b.py + k, py);
+    store(b.pz + k, pz);
+    // frameOf: (|p.x| < 0.9 ? unit x : unit y) × p, normalised; then p × that.
+    const LaneMask useX = absLanes(px) < splat(0.9);
+    const Lanes ex = select(useX, splat(1.0), splat(0.0)), ey = select(useX, splat(0.0), splat(1.0)),
+                ez = splat(0.0);
+    Lanes ax = ey * pz - ez * py, ay = ez * px - ex * pz, az = ex * py - ey * px;
+    normalizeLanes(ax, ay, az);
+    store(b.ax + k, ax);
+    store(b.ay + k, ay);
+    store(b.az + k, az);
+    store(b.bx + k, py * az - pz * ay);
+    store(b.by + k, pz * ax - px * az);
+    store(b.bz + k, px * ay - py * ax);
+  }
+}
+
+/// The normals from the predictions, frames and residuals (normalFromCode).
+void decodeBlock(NormalBlock& b) {
+  const Lanes one = splat(1.0), minCos = splat(0.05);
+  for (std::size_t k = 0; k < b.count; k += kLanes) {
+    // octDecode
+    const Lanes u = load(b.u + k), v = load(b.v + k);
+    const Lanes au = absLanes(u), av = absLanes(v);
+    Lanes lx = u, ly = v, lz = (one - au) - av;
+    const LaneMask folded = lz < splat(0.0);
+    lx = select(folded, (one - av) * select(u >= splat(0.0), one, -one), lx);
+    ly = select(folded, (one - au) * select(v >= splat(0.0), one, -one), ly);
+    normalizeLanes(lx, ly, lz);
+    // b1 local.x + b2 local.y + pred local.z, normalised
+    const Lanes px = load(b.px + k), py = load(b.py + k), pz = load(b.pz + k);
+    Lanes nx = (load(b.ax + k) * lx + load(b.bx + k) * ly) + px * lz;
+    Lanes ny = (load(b.ay + k) * lx + load(b.by + k) * ly) + py * lz;
+    Lanes nz = (load(b.az + k) * lx + load(b.bz + k) * ly) + pz * lz;
+    normalizeLanes(nx, ny, nz);
+    LaneMask keep;
+    std::memcpy(&keep, b.keepX + k, sizeof keep);
+    nx = select(keep, nx, splat(0.0));
+    std::memcpy(&keep, b.keepY + k, sizeof keep);
+    ny = select(keep, ny, splat(0.0));
+    std::memcpy(&keep, b.keepZ + k, sizeof keep);
+    nz = select(keep, nz, splat(0.0));
+    // orientCornerNormal
+    const Lanes tx = load(b.tx + k), ty = load(b.ty + k), tz = load(b.tz + k);
+    const Lanes len = sqrtLanes((nx * nx + ny * ny) + nz * nz);
+    const LaneMask ok = (len > splat(0.0)) & (len <= splat(std::numeric_limits<double>::max()));
+    nx = nx / len;
+    ny = ny / len;
+    nz = nz / len;
+    const Lanes c = (nx * tx + ny * ty) + nz * tz;
+    const LaneMask tilt = c < minCos;
+    Lanes mx = nx + (minCos - c) * tx, my = ny + (minCos - c) * ty, mz = nz + (minCos - c) * tz;
+    normalizeLanes(mx, my, mz);
+    store(b.nx + k, select(ok, select(tilt, mx, nx), tx));
+    store(b.ny + k, select(ok, select(tilt, my, ny), ty));
+    store(b.nz + k, select(ok, select(tilt, mz, nz), tz));
+  }
+}
+
+/// Sets every vertex normal from its prediction and residual code, a block of each chunk's vertices at a
+/// time: `codeOf(chunk)` returns a function of (first vertex of the block, block) that sets the block's
+/// residuals (u, v: the codes times the step) from its predictions and frames (the reader reads the codes,
+/// the writer chooses them). The normals are decoded when `decode` (a writer needs them only for `paper`
+/// models); then the full-precision normals are put.
 template <class CodeOf>
-void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbours>& around, double step,
+void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbours>& around, bool decode,
                    CodeOf&& codeOf) {
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
     auto code = codeOf(i);
-    for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
-      const std::size_t g = ch.vertexBase + v;
-      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
-      const std::uint8_t flags = ch.vertexFlags[v];
-      const Vec3 pred = predictedNormal(m, around[g], g, axis, (flags >> 5) & 1);
-      std::int64_t qu = 0, qv = 0;
-      code(v, pred, qu, qv);  // refined vertices: the code in steps 2^-refineBits as fine
-      m.vertices[g].normal = normalFromCode(
-          pred, qu, qv, ch.isRefined(v) ? std::ldexp(step, -ch.refineBits) : step, axis, flags);
+    NormalBlock b;
+    for (std::size_t first = 0; first < ch.vertexKey.size(); first += NormalBlock::kSize) {
+      b.count = std::min(NormalBlock::kSize, ch.vertexKey.size() - first);
+      sumBlock(m, around, ch, first, b);
+      predictBlock(b);
+      code(first, b);
+      if (!decode) continue;
+      for (std::size_t k = 0; k < b.count; ++k) {
+        const std::uint8_t flags = ch.vertexFlags[first + k];
+        std::int64_t keep[3] = {-1, -1, -1};
+        if (flags & 64) {  // on a grid point: the components that are exactly zero stay so
+          const auto o = cube::otherAxes(static_cast<int>(ch.vertexKey[first + k] % 3));
+          for (int oi = 0; oi < 2; ++oi)
+            if ((flags >> oi) & 1) keep[o[oi]] = 0;
+        }
+        b.keepX[k] = keep[0];
+        b.keepY[k] = keep[1];
+        b.keepZ[k] = keep[2];
+      }
+      for (std::size_t k = b.count; k < (b.count + kLanes - 1) / kLanes * kLanes; ++k) {
+        b.u[k] = b.v[k] = 0.0;
+        b.keepX[k] = b.keepY[k] = b.keepZ[k] = -1;
+      }
+      decodeBlock(b);
+      for (std::size_t k = 0; k < b.count; ++k)
+        m.vertices[ch.vertexBase + first + k].normal = Vec3(b.nx[k], b.ny[k], b.nz[k]);
     }
     for (std::size_t k = 0; k < ch.exact.size(); ++k)
       m.vertices[ch.vertexBase + ch.exact[k]].normal = ch.exactNormal[k];
@@ -951,11 +1161,42 @@ void signsFromModel(const Model& m, ChunkTopology& ch, ModelRows& cellRows, cons
       }
       auto& range = cellRows.at(j, k);
       range.first = range.second = static_cast<std::size_t>(it - m.cells.begin());
+      // The four point rows of this row of cells (nullptr: outside the region): a cell's two points on each
+      // are set with one word operation where both are inside the region and in the same word.
+      Word* rowKnown[4];
+      Word* rowSign[4];
+      for (int d = 0; d < 4; ++d) {
+        const std::int64_t y = j + (d & 1), z = k + (d >> 1);
+        const bool inside = y >= r.lo[1] && y < r.lo[1] + r.n[1] && z >= r.lo[2] && z < r.lo[2] + r.n[2];
+        const std::size_t at = inside ? static_cast<std::size_t>(r.rowIndex(y, z)) * W : 0;
+        rowKnown[d] = inside ? &known[at] : nullptr;
+        rowSign[d] = inside ? &ch.sign[at] : nullptr;
+      }
       for (; it != m.cells.end() && it->index[1] == j && it->index[2] == k && it->index[0] < iEnd; ++it) {
         const ModelCell& cell = *it;
         const std::int64_t i = cell.index[0];
         range.second = static_cast<std::size_t>(it - m.cells.begin()) + 1;
-        for (int v = 0; v < 8; ++v) {
+        const std::int64_t lx = i - r.lo[0];
+        if (lx >= 0 && lx + 1 < r.n[0] && (lx & 63) != 63) {
+          const auto w = static_cast<std::size_t>(lx >> 6);
+          const int shift = static_cast<int>(lx & 63);
+          const Word both = Word(3) << shift;
+          Word values[4];
+          bool agree = true;
+          for (int d = 0; d < 4; ++d) {
+            values[d] = static_cast<Word>((cell.config >> (2 * d)) & 3) << shift;
+            if (rowKnown[d]) agree &= !(rowKnown[d][w] & (rowSign[d][w] ^ values[d]) & both);
+          }
+          if (agree) {
+            for (int d = 0; d < 4; ++d)
+              if (rowKnown[d]) {
+                rowKnown[d][w] |= both;
+                rowSign[d][w] |= values[d];
+              }
+            continue;
+          }
+        }
+        for (int v = 0; v < 8; ++v) {  // points in two words or outside the region, or a disagreement
           const auto o = cube::vertexCoords(v);
           const I3 p{i + o[0], j + o[1], k + o[2]};
           if (!r.contains(p)) continue;
@@ -1061,35 +1302,6 @@ void buildChunkFromModel(const Model& m, const Layout& L, ChunkTopology& ch, Chu
   ownedItems(L, ch);
 }
 
-/// Which model vertex each vertex of the file is, and which model cells each face of the file bounds: per
-/// vertex the model vertex of each cell around its edge (in grid order), per face the cell on each side.
-struct ModelUse {
-  std::vector<std::array<std::uint32_t, 4>> vertex;
-  std::vector<std::array<std::uint32_t, 2>> face;
-};
-
-ModelUse modelUse(const Model& m, const Model& sk, const CellFaces& cellFaces, std::size_t faces) {
-  ModelUse use;
-  use.vertex.assign(sk.vertices.size(), {kNone, kNone, kNone, kNone});
-  use.face.assign(faces, {kNone, kNone});
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, sk.cells.size()), [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t c = r.begin(); c < r.end(); ++c) {
-          const ModelCell& cell = sk.cells[c];
-          const CellLoops loops = buildCellLoops(cell.config, cell.pairing03);
-          for (int k = 0; k < loops.numCorners(); ++k)
-            use.vertex[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]]
-                      [static_cast<std::size_t>(aroundSlot(loops.edges[static_cast<std::size_t>(k)]))] =
-                m.corners[m.cells[c].firstCorner + static_cast<std::uint32_t>(k)];
-          for (int f = 0; f < 6; ++f)
-            if (cellFaces[c][static_cast<std::size_t>(f)] != kNone)
-              use.face[cellFaces[c][static_cast<std::size_t>(f)]][static_cast<std::size_t>(f & 1)] =
-                  static_cast<std::uint32_t>(c);
-        }
-      });
-  return use;
-}
-
 /// The chunk's crossing parameters, zero normal components, pairings and side coefficients from the model.
 void codeChunkItems(const Model& m, const Layout& L, const ModelFileV2Options& q, const ModelUse& use,
                     ChunkTopology& ch, ChunkSource& src, const std::string& name) {
@@ -1116,7 +1328,7 @@ void codeChunkItems(const Model& m, const Layout& L, const ModelFileV2Options& q
       if (!(t >= 0 && t <= 1))
         throw Error(name + ": the model cannot be written in format 2: a vertex is not on its grid edge");
     }
-    ch.tCode[v] = static_cast<std::uint16_t>(std::clamp<long long>(std::llround(t * tMax), 0, tMax));
+    ch.tCode[v] = static_cast<std::uint16_t>(std::clamp<std::int64_t>(roundHalfAway(t * tMax), 0, tMax));
     ch.streams[kPositionsLo].push_back(static_cast<std::uint8_t>(ch.tCode[v] & 0xFF));
     if (q.positionBits > 8) ch.streams[kPositionsHi].push_back(static_cast<std::uint8_t>(ch.tCode[v] >> 8));
   }
@@ -1286,6 +1498,14 @@ bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Ch
   return added;
 }
 
+/// normalCode with the prediction's own frame (frameOf: the same bits as the blocks' frames).
+void normalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uint8_t flags, std::int64_t& qu,
+                std::int64_t& qv) {
+  Vec3 b1, b2;
+  frameOf(pred, b1, b2);
+  normalCode(pred, b1, b2, n, step, axis, flags, qu, qv);
+}
+
 /// normalCode, then, where the reader's correction near the minimal angle to the edge moves the normal by
 /// more steps than normalCode searches, a code whose normal codes back to itself, so that a rewrite keeps it.
 void stableNormalCode(const Vec3& pred, const Vec3& n, double step, int axis, std::uint8_t flags,
@@ -1386,6 +1606,44 @@ void writeVertexStreams(ChunkTopology& ch, const std::vector<std::array<std::int
   }
 }
 
+/// The keys of the bricks that get a chunk, increasing: those with cells, and the bricks above them that own
+/// their upper edges and faces. Cells come in grid order, so a brick is listed once per run of its cells in a
+/// row; only cells on a brick's upper faces look further.
+std::vector<std::int64_t> chunkKeys(const Model& m, const Layout& L) {
+  std::vector<std::int64_t> keys;
+  std::int64_t lastKey = -1, rowJ = -1, rowK = -1, xEnd = 0, bx = 0, by = 0, bz = 0;
+  bool topY = false, topZ = false;
+  for (const ModelCell& c : m.cells) {
+    const I3 idx{c.index[0], c.index[1], c.index[2]};
+    if (idx[1] != rowJ || idx[2] != rowK) {
+      rowJ = idx[1];
+      rowK = idx[2];
+      by = rowJ / L.B;
+      bz = rowK / L.B;
+      topY = rowJ % L.B == L.B - 1;
+      topZ = rowK % L.B == L.B - 1;
+      xEnd = 0;
+    }
+    if (idx[0] >= xEnd || idx[0] < xEnd - L.B) {
+      bx = idx[0] / L.B;
+      xEnd = (bx + 1) * L.B;
+    }
+    const I3 b{bx, by, bz};
+    const std::int64_t own = L.key(b);
+    if (own != lastKey) keys.push_back(lastKey = own);
+    if (!topY && !topZ && idx[0] != xEnd - 1) continue;
+    for (int d = 1; d < 8; ++d) {
+      const auto o = cube::vertexCoords(d);
+      if ((o[0] && idx[0] != xEnd - 1) || (o[1] && !topY) || (o[2] && !topZ)) continue;
+      const I3 pb = L.pointBrick({idx[0] + o[0], idx[1] + o[1], idx[2] + o[2]});
+      if (pb != b) keys.push_back(L.key(pb));
+    }
+  }
+  std::sort(keys.begin(), keys.end());
+  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  return keys;
+}
+
 void checkOptions(const ModelFileV2Options& q) {
   if (q.brick < 8 || q.brick > 128) throw Error("model format 2: brick size must be in 8..128");
   if (q.positionBits < 4 || q.positionBits > 16)
@@ -1416,23 +1674,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   for (int a = 0; a < 3; ++a) L.nb[a] = (L.dims[a] - 1 + L.B - 1) / L.B;
   for (double v : {m.geometry.origin[0], m.geometry.origin[1], m.geometry.origin[2], m.isovalue})
     if (!std::isfinite(v)) throw Error("model format 2: the header has a non-finite number");
-  // Bricks with cells, and the bricks above them that own their upper edges and faces.
-  std::vector<std::int64_t> keys;
-  for (const ModelCell& c : m.cells) {
-    const I3 idx{c.index[0], c.index[1], c.index[2]};
-    const I3 b{idx[0] / L.B, idx[1] / L.B, idx[2] / L.B};
-    for (int d = 0; d < 8; ++d) {
-      const auto o = cube::vertexCoords(d);
-      if ((o[0] && idx[0] % L.B != L.B - 1) || (o[1] && idx[1] % L.B != L.B - 1) ||
-          (o[2] && idx[2] % L.B != L.B - 1))
-        continue;
-      const I3 p{idx[0] + o[0], idx[1] + o[1], idx[2] + o[2]};
-      const I3 pb = L.pointBrick(p);
-      if (pb != b || d == 0) keys.push_back(L.key(pb));
-    }
-  }
-  std::sort(keys.begin(), keys.end());
-  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  const std::vector<std::int64_t> keys = chunkKeys(m, L);
   chunks.keys = keys;
   chunks.list.resize(keys.size());
   for (std::size_t i = 0; i < keys.size(); ++i) {
@@ -1456,9 +1698,10 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   for (ChunkTopology& ch : chunks.list) indexCellRows(ch);
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
-  fillCells(chunks, sk, around, &cellFaces, &m, name);
   {
-    const ModelUse use = modelUse(m, sk, cellFaces, fb);
+    ModelUse use;
+    const bool paper = m.method == PatchMethod::Paper;  // only its side coefficients need sk's cells
+    fillCells(chunks, sk, around, paper ? &cellFaces : nullptr, &m, &use, paper, name);
     tbb::parallel_for(std::size_t(0), chunks.list.size(),
                       [&](std::size_t i) { codeChunkItems(m, L, q, use, chunks.list[i], sources[i], name); });
   }
@@ -1478,22 +1721,28 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   // Normal codes against the prediction, and the normals (and weights) a reader will have.
   std::vector<std::array<std::int64_t, 2>> codes(sk.vertices.size(), {0, 0});
   auto codeNormals = [&] {
-    decodeNormals(sk, chunks, around, nStep, [&](std::size_t i) {
-      return [&, i](std::size_t v, const Vec3& pred, std::int64_t& qu, std::int64_t& qv) {
+    decodeNormals(sk, chunks, around, m.method == PatchMethod::Paper, [&](std::size_t i) {
+      return [&, i](std::size_t first, NormalBlock& b) {
         const ChunkTopology& ch = chunks.list[i];
-        const std::int64_t mvi = sources[i].vertex[v];
-        std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
-        if (mvi >= 0) {
-          const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
-          if (refine)
-            refinedNormalCode(chunks.list[i], v, pred, mv.normal, nStep, c[0], c[1]);
-          else
-            normalCode(pred, mv.normal, nStep, static_cast<int>(ch.vertexKey[v] % 3), ch.vertexFlags[v], c[0],
-                       c[1]);
-          sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
+        for (std::size_t k = 0; k < b.count; ++k) {
+          const std::size_t v = first + k;
+          const std::int64_t mvi = sources[i].vertex[v];
+          std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
+          if (mvi >= 0) {
+            const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
+            const Vec3 pred(b.px[k], b.py[k], b.pz[k]);
+            if (refine)
+              refinedNormalCode(chunks.list[i], v, pred, mv.normal, nStep, c[0], c[1]);
+            else
+              normalCode(pred, Vec3(b.ax[k], b.ay[k], b.az[k]), Vec3(b.bx[k], b.by[k], b.bz[k]), mv.normal,
+                         nStep, static_cast<int>(ch.vertexKey[v] % 3), ch.vertexFlags[v], c[0], c[1]);
+            sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
+          }
+          // A refined vertex's code is in steps 2^-refineBits as fine.
+          const double step = ch.isRefined(v) ? std::ldexp(nStep, -ch.refineBits) : nStep;
+          b.u[k] = static_cast<double>(c[0]) * step;
+          b.v[k] = static_cast<double>(c[1]) * step;
         }
-        qu = c[0];
-        qv = c[1];
       };
     });
   };
@@ -1516,6 +1765,10 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     ChunkTopology& ch = chunks.list[i];
     const ChunkSource& src = sources[i];
+    // Room for the usual one or two bytes per number, so that the streams seldom grow.
+    ch.streams[kNormals].reserve(4 * ch.vertexKey.size());
+    ch.streams[kSides].reserve(2 * src.side.size());
+    ch.streams[kCentrals].reserve(2 * src.cell.size());
     writeVertexStreams(ch, codes, sk, flags);
     for (std::size_t f = 0; f < src.side.size(); ++f)
       putVarint(ch.streams[kSides], zigzag(coefficientCode(src.side[f] - sidePrediction[ch.faceBase + f],
@@ -1711,20 +1964,24 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
 void readCoefficients(ChunkTopology& ch, const FileHeader& h, const std::string& where) {
   StreamReader sr(&ch.streams[kSides], where + ": side coefficients");
   StreamReader cr(&ch.streams[kCentrals], where + ": central coefficients");
-  if (h.flags & kSidesStored) {
-    ch.side.resize(ch.faceKey.size());
-    for (double& w : ch.side) {
-      w = coefficientValue(sr.svarint(), h.q.sideStep, h.q.sideMantissa);
-      if (!std::isfinite(w)) sr.fail("has a side coefficient out of range");
+  // Each stream's codes first, then their values; a non-finite value is reported once the stream is read.
+  std::vector<std::int64_t> codes;
+  auto read = [&codes](StreamReader& in, std::vector<double>& out, std::size_t n, double step, int m,
+                       const char* what) {
+    codes.resize(n);
+    in.svarints(n, codes.data());
+    out.resize(n);
+    double* w = out.data();
+    bool finite = true;
+    for (std::size_t i = 0; i < n; ++i) {
+      w[i] = coefficientValue(codes[i], step, m);
+      finite &= std::abs(w[i]) <= std::numeric_limits<double>::max();
     }
-  }
-  if (h.flags & kCentralsStored) {
-    ch.central.resize(ch.cells.size());
-    for (double& w : ch.central) {
-      w = coefficientValue(cr.svarint(), h.q.centralStep, h.q.centralMantissa);
-      if (!std::isfinite(w)) cr.fail("has a central coefficient out of range");
-    }
-  }
+    if (!finite) in.fail(std::string("has a ") + what + " coefficient out of range");
+  };
+  if (h.flags & kSidesStored) read(sr, ch.side, ch.faceKey.size(), h.q.sideStep, h.q.sideMantissa, "side");
+  if (h.flags & kCentralsStored)
+    read(cr, ch.central, ch.cells.size(), h.q.centralStep, h.q.centralMantissa, "central");
   sr.expectEnd();
   cr.expectEnd();
 }
@@ -1878,7 +2135,7 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
   readCoefficients(ch, h, where);
 }
 
-/// A chunk's weights and normal codes, read in step with decodeNormals (one call per vertex, in order).
+/// A chunk's weights and normal codes, read in step with decodeNormals (one call per block, in order).
 class NormalCodeReader {
  public:
   NormalCodeReader(const ChunkTopology& ch, const FileHeader& h, Model& m, const std::string& where)
@@ -1886,22 +2143,29 @@ class NormalCodeReader {
         m_(m),
         weights_((h.flags & kWeightsStored) != 0),
         limit_((std::int64_t(1) << h.q.normalBits) + 1),
+        step_(std::ldexp(1.0, -h.q.normalBits)),
         normals_(&ch.streams[kNormals], where + ": normals"),
         corner_(&ch.streams[kWeights], where + ": corner coefficients") {}
-  void operator()(std::size_t v, const Vec3&, std::int64_t& qu, std::int64_t& qv) {
-    qu = normals_.svarint();
-    qv = normals_.svarint();
-    if (std::abs(qu) > limit_ || std::abs(qv) > limit_) normals_.fail("has a normal code out of range");
-    if (ch_.isRefined(v)) {  // the code in the finer steps
-      qu = qu * (std::int64_t(1) << ch_.refineBits) + ch_.fine[v][1];
-      qv = qv * (std::int64_t(1) << ch_.refineBits) + ch_.fine[v][2];
+  void operator()(std::size_t first, NormalBlock& b) {
+    for (std::size_t k = 0; k < b.count; ++k) {
+      const std::size_t v = first + k;
+      std::int64_t qu = normals_.svarint(), qv = normals_.svarint();
+      if (std::abs(qu) > limit_ || std::abs(qv) > limit_) normals_.fail("has a normal code out of range");
+      double step = step_;
+      if (ch_.isRefined(v)) {  // the code in the finer steps
+        qu = qu * (std::int64_t(1) << ch_.refineBits) + ch_.fine[v][1];
+        qv = qv * (std::int64_t(1) << ch_.refineBits) + ch_.fine[v][2];
+        step = std::ldexp(step_, -ch_.refineBits);
+      }
+      b.u[k] = static_cast<double>(qu) * step;
+      b.v[k] = static_cast<double>(qv) * step;
+      if (weights_) {
+        double& w = m_.vertices[ch_.vertexBase + v].weight;
+        w = corner_.f64();
+        if (!std::isfinite(w)) corner_.fail("has a non-finite corner coefficient");
+      }
     }
-    if (weights_) {
-      double& w = m_.vertices[ch_.vertexBase + v].weight;
-      w = corner_.f64();
-      if (!std::isfinite(w)) corner_.fail("has a non-finite corner coefficient");
-    }
-    if (v + 1 == ch_.vertexKey.size()) {
+    if (first + b.count == ch_.vertexKey.size()) {
       normals_.expectEnd();
       corner_.expectEnd();
     }
@@ -1912,6 +2176,7 @@ class NormalCodeReader {
   Model& m_;
   bool weights_;
   std::int64_t limit_;
+  double step_;
   StreamReader normals_, corner_;
 };
 
@@ -1991,9 +2256,9 @@ Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string
   const bool paper = m.method == PatchMethod::Paper;
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
-  fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, name);
+  fillCells(chunks, m, around, paper ? &cellFaces : nullptr, nullptr, nullptr, true, name);
   placeVertices(chunks, h.q.positionBits, m);
-  decodeNormals(m, chunks, around, std::ldexp(1.0, -h.q.normalBits), [&](std::size_t i) {
+  decodeNormals(m, chunks, around, true, [&](std::size_t i) {
     return NormalCodeReader(chunks.list[i], h, m, chunkName(name, i, h.dir[i], chunks.L.B));
   });
   if (paper) {  // the side coefficients read so far are residuals against the paper's rule

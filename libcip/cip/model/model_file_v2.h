@@ -23,12 +23,12 @@ struct ModelFileV2Options {
   int sideMantissa = 6;        ///< ... and this many bits of relative precision above 2^bits steps
   double centralStep = 0.008;  ///< central coefficients, likewise
   int centralMantissa = 4;
-  int zstdLevel = 9;
+  int zstdLevel = 3;  ///< the streams' zstd level, 1..19 (files written before: 9; a reader takes any)
 
   /// The defaults for a model built with `method`: the paper's coefficients are recomputed from the stored
   /// corners and are more sensitive to them, so its normals get one more bit (and the vertices of cells that
   /// amplify rounding 8 more: docs/model-format.md, "Refined vertices").
-  static ModelFileV2Options forMethod(PatchMethod method);  ///< 1..19
+  static ModelFileV2Options forMethod(PatchMethod method);
 };
 
 std::vector<std::uint8_t> serializeModelV2(const Model& model, const ModelFileV2Options& options = {});
