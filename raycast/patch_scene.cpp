@@ -8,8 +8,8 @@
 #include <cmath>
 #include <tuple>
 
-#include "cip/patch/patch_bounds.h"
-#include "cip/patch/ray_patch.h"
+#include "cip/ray/patch_bounds.h"
+#include "cip/ray/ray_patch.h"
 #include "cip/topology/cube_topology.h"
 
 namespace cip::raycast {

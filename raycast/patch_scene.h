@@ -1,6 +1,6 @@
 /// @file patch_scene.h
 /// @brief A corner-patch model as an Embree user geometry: one primitive per non-empty cell, exact ray-patch
-/// intersection in double precision (cip/patch/ray_patch.h), normals and curvature from the patch's exact
+/// intersection in double precision (cip/ray/ray_patch.h), normals and curvature from the patch's exact
 /// derivatives. Rays come in world coordinates and are mapped into the model's axis-aligned grid frame
 /// (world_transform.h), so the patches stay exact under any rotation, flip or shear of the volume.
 #pragma once
@@ -9,7 +9,7 @@
 
 #include "cip/model/model.h"
 #include "cip/patch/corner_patch.h"
-#include "cip/patch/open_face_cap.h"
+#include "cip/ray/open_face_cap.h"
 #include "scene.h"
 
 namespace cip::raycast {

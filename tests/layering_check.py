@@ -19,7 +19,7 @@ import shutil
 import sys
 import tempfile
 
-STAGES = ["core", "topology", "volume", "readers", "reference", "patch", "model", "mesh", "meshio",
+STAGES = ["core", "topology", "volume", "readers", "reference", "patch", "ray", "model", "mesh", "meshio",
           "measure"]
 MAX_FILES = 20  # readers/ holds a header and source per file format: nine formats and their plumbing
 MAX_LINES = 150

@@ -1,7 +1,7 @@
 // The zero mask of a patch (patch_bounds.h): every zero of a real patch lies in a marked sub-box, an unmarked
 // sub-box holds values of one strict sign, and searching a ray only over the stretch of marked sub-boxes
 // finds the same first crossing as searching the whole cell, for rays of every kind through every cell.
-#include "cip/patch/patch_bounds.h"
+#include "cip/ray/patch_bounds.h"
 
 #include <gtest/gtest.h>
 
@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "cip/model/model_builder.h"
-#include "cip/patch/ray_patch.h"
+#include "cip/ray/ray_patch.h"
 #include "cip/volume/analytic_field.h"
 #include "support/field_model.h"
 

@@ -3,7 +3,7 @@
 // coefficients describe it on the interval with their ends equal to its values bit for bit; and its interval
 // bound never excludes a zero. Checked on every cell of real patch models, for random rays and rays along
 // the axes and in the cell's faces.
-#include "cip/patch/patch_ray_polynomial.h"
+#include "cip/ray/patch_ray_polynomial.h"
 
 #include <gtest/gtest.h>
 
@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "cip/model/model_builder.h"
-#include "cip/patch/ray_patch.h"
+#include "cip/ray/ray_patch.h"
 #include "cip/volume/analytic_field.h"
 #include "support/field_model.h"
 

@@ -1,7 +1,7 @@
 // Ray-patch intersection: the Bernstein root finder against independent oracles (known factored roots, dense
 // sampling with long double evaluation plus bisection), edge cases (roots at interval ends, double roots,
 // clustered roots, near misses), the cell clip, and real patches of a sampled sphere.
-#include "cip/patch/ray_patch.h"
+#include "cip/ray/ray_patch.h"
 
 #include <gtest/gtest.h>
 

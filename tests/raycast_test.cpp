@@ -24,7 +24,7 @@
 #include "cip/mesh/ply.h"
 #include "cip/model/model_builder.h"
 #include "cip/model/model_file.h"
-#include "cip/patch/ray_patch.h"
+#include "cip/ray/ray_patch.h"
 #include "cip/readers/volume_reader.h"
 #include "cip/topology/cube_topology.h"
 #include "cip/volume/analytic_field.h"

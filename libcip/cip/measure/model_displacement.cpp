@@ -11,7 +11,7 @@
 #include <string>
 
 #include "cip/core/error.h"
-#include "cip/patch/ray_patch.h"
+#include "cip/ray/ray_patch.h"
 
 namespace cip {
 

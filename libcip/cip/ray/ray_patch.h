@@ -12,7 +12,7 @@
 #include <stdexcept>
 
 #include "cip/patch/corner_patch.h"
-#include "cip/patch/patch_ray_polynomial.h"
+#include "cip/ray/patch_ray_polynomial.h"
 
 namespace cip {
 

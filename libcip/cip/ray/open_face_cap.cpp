@@ -1,4 +1,4 @@
-#include "cip/patch/open_face_cap.h"
+#include "cip/ray/open_face_cap.h"
 
 #include <algorithm>
 #include <cmath>

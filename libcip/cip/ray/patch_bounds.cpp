@@ -1,4 +1,4 @@
-#include "cip/patch/patch_bounds.h"
+#include "cip/ray/patch_bounds.h"
 
 #include <algorithm>
 #include <array>

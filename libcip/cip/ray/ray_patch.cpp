@@ -1,4 +1,4 @@
-#include "cip/patch/ray_patch.h"
+#include "cip/ray/ray_patch.h"
 
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-#include "cip/patch/patch_ray_polynomial.h"
+#include "cip/ray/patch_ray_polynomial.h"
 
 #include <algorithm>
 #include <cmath>
