@@ -1577,8 +1577,8 @@ void writeVertexStreams(ChunkTopology& ch, const std::vector<std::array<std::int
       for (int k = 0; k < 2; ++k) {
         const std::int64_t fineCode = c[static_cast<std::size_t>(k)];
         c[static_cast<std::size_t>(k)] = (fineCode + (std::int64_t(1) << (kRefineBits - 1))) >> kRefineBits;
-        ch.fine[v][static_cast<std::size_t>(k + 1)] =
-            static_cast<std::int32_t>(fineCode - (c[static_cast<std::size_t>(k)] << kRefineBits));
+        ch.fine[v][static_cast<std::size_t>(k + 1)] = static_cast<std::int32_t>(
+            fineCode - c[static_cast<std::size_t>(k)] * (std::int64_t(1) << kRefineBits));
       }
     }
     putVarint(ch.streams[kNormals], zigzag(c[0]));
