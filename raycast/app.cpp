@@ -9,10 +9,12 @@
 
 #include "cip/core/atomic_file.h"
 #include "cip/core/error.h"
+#include "cip/core/mapped_file.h"
 #include "cip/core/progress_bar.h"
 #include "cip/mesh/ply.h"
 #include "cip/model/model_file.h"
 #include "image_output.h"
+#include "memory_plan.h"
 #include "mesh_scene.h"
 #include "patch_scene.h"
 #include "process_clock.h"
@@ -72,6 +74,9 @@ int runApp(const AppOptions& opt) {
   const auto t0 = Clock::now();
   Model model;
   TriangleMesh mesh;
+  struct {
+    std::uint64_t estimate = 0, available = 0, limit = 0, model = 0;
+  } memory;
   std::unique_ptr<RenderScene> scene;
   std::string input;
   double readSeconds = 0;
@@ -86,7 +91,32 @@ int runApp(const AppOptions& opt) {
   } else {
     if (opt.model.empty()) throw Error("no input: give a model file (.cip) or --mesh mesh.ply");
     input = opt.model;
-    model = readModel(opt.model);
+    // The header says how large the model is before anything is decoded: refuse what cannot fit.
+    const MappedFile file(opt.model);
+    const ModelTableCounts counts = modelTableCounts(file.data(), file.size(), opt.model);
+    const MemoryPlan plan = planPatchRender(counts, width, height);
+    memory.estimate = plan.peak();
+    memory.available = availableMemory();
+    memory.limit =
+        opt.memoryLimit.empty() ? memory.available : parseByteSize(opt.memoryLimit, "--memory-limit");
+    if (!opt.quiet)
+      std::fprintf(stderr, "%s: %llu cells; needs about %s (model %s, %s %s, image %s) of %s %s\n",
+                   opt.model.c_str(), static_cast<unsigned long long>(counts.cells),
+                   formatBytes(plan.peak()).c_str(), formatBytes(plan.model).c_str(),
+                   plan.decode > plan.scene ? "decoding" : "scene",
+                   formatBytes(std::max(plan.decode, plan.scene)).c_str(), formatBytes(plan.image).c_str(),
+                   memory.limit ? formatBytes(memory.limit).c_str() : "an unknown amount",
+                   opt.memoryLimit.empty() ? "available" : "allowed (--memory-limit)");
+    if (memory.limit && plan.peak() > memory.limit)
+      throw Error(opt.model + ": rendering needs about " + formatBytes(plan.peak()) + " (model " +
+                  formatBytes(plan.model) + ", scene " + formatBytes(plan.scene) + ", image " +
+                  formatBytes(plan.image) + "), more than the " + formatBytes(memory.limit) + " " +
+                  (opt.memoryLimit.empty() ? "this machine has available" : "that --memory-limit allows") +
+                  "; free memory, render a smaller image, or pass a larger --memory-limit to try anyway");
+    file.prefetch();
+    model = parseModel(file.data(), file.size(), opt.model);
+    memory.model = ModelTableCounts{0, model.vertices.size(), model.cells.size(), model.corners.size(), true}
+                       .tableBytes();
     readSeconds = secondsSince(t0);
     PatchSceneOptions sceneOptions;
     sceneOptions.curvature = render.shading.mode == ShadingMode::Curvature;
@@ -137,6 +167,14 @@ int runApp(const AppOptions& opt) {
                     {"scene", buildSeconds - readSeconds}, {"write_image", writeSeconds},
                     {"total", secondsSinceProcessStart()}};
     j["rays"] = {{"primary", stats.primaryRays}, {"shadow", stats.shadowRays}};
+    // Bytes: the estimate said before the model was read (patch models), what the model's tables and the
+    // scene took, and the process's peak resident set.
+    j["memory"] = {{"scene_bytes", scene->bytes()}, {"peak_rss_bytes", peakResidentBytes()}};
+    if (opt.mesh.empty())
+      j["memory"].update({{"estimated_peak_bytes", memory.estimate},
+                          {"available_bytes", memory.available},
+                          {"limit_bytes", memory.limit},
+                          {"model_bytes", memory.model}});
     j["rays_per_second"] = stats.seconds > 0 ? rays / stats.seconds : 0.0;
     j["hit_pixels"] = stats.hitPixels;
     j["camera"] = {{"eye", {camera.eye().x(), camera.eye().y(), camera.eye().z()}},

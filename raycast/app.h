@@ -27,6 +27,7 @@ struct AppOptions {
   std::vector<double> curvatureRange;  ///< empty or 2 numbers
   int threads = 0;
   std::string statsJson;
+  std::string memoryLimit;  ///< --memory-limit: refuse above this estimated peak (empty = memory available)
   std::string space;  ///< --space: world frame of the camera and hits (empty = the model's own)
   bool quiet = false;
 };

@@ -67,6 +67,10 @@ int main(int argc, char** argv) {
                  "(default: the model's own, e.g. RAS for NIfTI, LPS for DICOM), e.g. --space lps")
       ->transform(CLI::detail::to_lower)
       ->check(CLI::IsMember({"ras", "las", "lps"}));
+  app.add_option("--memory-limit", opt.memoryLimit,
+                 "refuse to render a model whose estimated peak memory exceeds this (default: the memory "
+                 "available now), e.g. --memory-limit 8G")
+      ->type_name("SIZE");
   app.add_option("--threads", opt.threads,
                  "worker threads, 0 = all (default); the image does not depend on it, "
                  "e.g. --threads 4")

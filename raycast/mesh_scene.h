@@ -23,6 +23,7 @@ class MeshScene : public RenderScene {
   bool occluded(const Ray& ray, double tNear, double tFar) const override;
   Box bounds() const override { return bounds_; }
   std::size_t primitives() const override { return mesh_.triangles.size(); }
+  std::uint64_t bytes() const override { return static_cast<std::uint64_t>(device_.peakBytes()); }
 
  private:
   const TriangleMesh& mesh_;

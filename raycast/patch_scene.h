@@ -38,6 +38,9 @@ class PatchScene : public RenderScene {
   /// World box of the non-empty cells (in the frame of PatchSceneOptions::space).
   Box bounds() const override { return bounds_; }
   std::size_t primitives() const override { return model_.cells.size(); }
+  std::uint64_t bytes() const override {
+    return zeroMasks_.size() * sizeof(std::uint64_t) + static_cast<std::uint64_t>(device_.peakBytes());
+  }
 
   // Used by the Embree callbacks.
   const Model& model() const { return model_; }

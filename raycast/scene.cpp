@@ -11,6 +11,16 @@ EmbreeDevice::EmbreeDevice(int threads)
     : device_(rtcNewDevice(threads > 0 ? ("threads=" + std::to_string(threads)).c_str() : nullptr)) {
   if (!device_)
     throw Error("cannot create an Embree device (error " + std::to_string(rtcGetDeviceError(nullptr)) + ")");
+  rtcSetDeviceMemoryMonitorFunction(device_, &EmbreeDevice::monitor, this);
+}
+
+bool EmbreeDevice::monitor(void* self, ssize_t bytes, bool /*post*/) {
+  auto* d = static_cast<EmbreeDevice*>(self);
+  const std::int64_t now = d->bytes_.fetch_add(bytes) + bytes;
+  std::int64_t peak = d->peak_.load();
+  while (now > peak && !d->peak_.compare_exchange_weak(peak, now)) {
+  }
+  return true;  // never refuse: the render checked its memory before it started
 }
 
 EmbreeDevice::~EmbreeDevice() {

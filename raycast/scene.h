@@ -6,6 +6,7 @@
 #include <embree3/rtcore.h>
 
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -40,6 +41,9 @@ class RenderScene {
   virtual Box bounds() const = 0;
   /// Embree primitives: non-empty cells or triangles.
   virtual std::size_t primitives() const = 0;
+  /// Bytes the scene holds besides its input (the model or mesh): Embree's at their peak, and its own
+  /// per-primitive tables.
+  virtual std::uint64_t bytes() const = 0;
 };
 
 /// An Embree device with error checking; one per scene.
@@ -53,9 +57,14 @@ class EmbreeDevice {
   RTCDevice get() const { return device_; }
   /// Throws cip::Error naming `what` if Embree reported an error since the last check.
   void check(const char* what) const;
+  /// Bytes Embree holds for this device's scenes now, and at most so far (its memory monitor's count).
+  std::int64_t bytes() const { return bytes_.load(); }
+  std::int64_t peakBytes() const { return peak_.load(); }
 
  private:
+  static bool monitor(void* self, ssize_t bytes, bool post);
   RTCDevice device_ = nullptr;
+  std::atomic<std::int64_t> bytes_{0}, peak_{0};
 };
 
 /// Embree single-ray fields from a world ray (float), with mask = 0xFFFFFFFF (Debian's Embree has ray masks

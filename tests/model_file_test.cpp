@@ -78,6 +78,39 @@ TEST(ModelFile, RoundTripIsIdentical) {
   std::filesystem::remove(path);
 }
 
+// What a reader can know from the header alone (raycast's memory estimate): the counts of the decoded tables,
+// for both versions and the paper and fitted methods; version 2's corner count is the 4-cells-per-edge bound.
+TEST(ModelFile, TableCountsFromTheHeaderMatchTheDecodedModel) {
+  DenseGrid blobs = test::randomVolume(12, 7);
+  BuildOptions paper;
+  paper.method = PatchMethod::Paper;
+  for (const Model& built : {sampleModel(), buildModel(blobs, {}), buildModel(blobs, paper)}) {
+    for (const ModelFileOptions& options : {ModelFileOptions{}, kVersion1}) {
+      const std::vector<std::uint8_t> bytes = serializeModel(built, options);
+      const ModelTableCounts n = modelTableCounts(bytes.data(), bytes.size(), "counts.cip");
+      const Model m = parseModel(bytes.data(), bytes.size());
+      EXPECT_EQ(n.version, options.version);
+      EXPECT_EQ(n.cells, m.cells.size());
+      EXPECT_EQ(n.vertices, m.vertices.size());
+      if (options.version == 1) {
+        EXPECT_TRUE(n.cornersExact);
+        EXPECT_EQ(n.corners, m.corners.size());
+      } else {
+        EXPECT_FALSE(n.cornersExact);
+        EXPECT_GE(n.corners, m.corners.size());
+        EXPECT_EQ(n.corners, 4 * m.vertices.size());
+      }
+      EXPECT_GE(n.tableBytes(), m.cells.size() * sizeof(ModelCell) + m.vertices.size() * sizeof(IsoVertex) +
+                                    m.corners.size() * sizeof(std::uint32_t));
+      // A damaged header is an error, as for parseModel.
+      std::vector<std::uint8_t> bad = bytes;
+      bad[9] ^= 0x40;  // the version
+      EXPECT_THROW(modelTableCounts(bad.data(), bad.size(), "bad.cip"), Error);
+      EXPECT_THROW(modelTableCounts(bytes.data(), 20, "cut.cip"), Error);
+    }
+  }
+}
+
 TEST(ModelFile, TruncatedFilesAreRejected) {
   for (const ModelFileOptions& options : {ModelFileOptions{}, kVersion1}) {
     std::vector<std::uint8_t> bytes = serializeModel(sampleModel(), options);

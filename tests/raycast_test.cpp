@@ -615,6 +615,46 @@ TEST(Raycast, BadModelFileIsAnErrorAndWritesNothing) {
   EXPECT_THROW(parseSize("0x10"), cip::Error);
 }
 
+// The memory estimate comes before the model is read: a limit below it is an error that writes nothing, and
+// the stats say what the estimate was beside what the model and scene took.
+TEST(Raycast, ModelsAboveTheMemoryLimitAreRefusedBeforeReading) {
+  const test::ScratchDir scratch;
+  const fs::path dir = scratch.path();
+  const fs::path cip = dir / "sphere16.cip", out = dir / "m.exr", stats = dir / "m.json";
+  const Model model = sampledModel("sphere", 16);
+  writeModel(model, cip.string());
+  AppOptions opt;
+  opt.model = cip.string();
+  opt.output = out.string();
+  opt.size = "64x48";
+  opt.quiet = true;
+  opt.statsJson = stats.string();
+  opt.memoryLimit = "64K";
+  try {
+    runApp(opt);
+    FAIL() << "rendered above the memory limit";
+  } catch (const cip::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("--memory-limit"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(out));
+  EXPECT_FALSE(fs::exists(stats));
+  opt.memoryLimit = "64 bytes";
+  EXPECT_THROW(runApp(opt), cip::Error);
+  opt.memoryLimit = "1G";
+  ASSERT_EQ(runApp(opt), 0);
+  std::ifstream in(stats);
+  const nlohmann::json j = nlohmann::json::parse(in).at("memory");
+  const std::uint64_t tables = model.cells.size() * sizeof(ModelCell) +
+                               model.vertices.size() * sizeof(IsoVertex) +
+                               model.corners.size() * sizeof(std::uint32_t);
+  EXPECT_EQ(j.at("model_bytes").get<std::uint64_t>(), tables);
+  EXPECT_EQ(j.at("limit_bytes").get<std::uint64_t>(), std::uint64_t{1} << 30);
+  EXPECT_GE(j.at("estimated_peak_bytes").get<std::uint64_t>(), tables);
+  // Embree reported the BVH it built (more than the zero masks alone).
+  EXPECT_GT(j.at("scene_bytes").get<std::uint64_t>(), model.cells.size() * sizeof(std::uint64_t));
+  EXPECT_GT(j.at("peak_rss_bytes").get<std::uint64_t>(), tables);
+}
+
 // The command itself: a bad model file gives one line on stderr, a non-zero exit status and no output files.
 TEST(Raycast, CommandRejectsBadModelWithOneLine) {
   const test::ScratchDir scratch;

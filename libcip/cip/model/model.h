@@ -71,6 +71,22 @@ struct Model {
   std::int64_t findCell(std::int64_t i, std::int64_t j, std::int64_t k) const;
 };
 
+/// The sizes of a model's three tables, as a file's header gives them before anything is decoded, and the
+/// memory those tables take once decoded: what a reader can say (or refuse) before it allocates.
+struct ModelTableCounts {
+  std::uint32_t version = 0;  ///< of the file the counts come from
+  std::uint64_t vertices = 0;
+  std::uint64_t cells = 0;
+  /// Exact in version 1 files. Version 2 files do not store it: there it is the bound 4 x vertices (an
+  /// isovertex lies on one grid edge, which at most four cells share), which closed surfaces reach.
+  std::uint64_t corners = 0;
+  bool cornersExact = true;
+  /// Bytes of Model::vertices, cells and corners holding these counts.
+  std::uint64_t tableBytes() const {
+    return vertices * sizeof(IsoVertex) + cells * sizeof(ModelCell) + corners * sizeof(std::uint32_t);
+  }
+};
+
 /// World box (lo, hi) of the model's non-empty cells under `world` (tight: each cell's box is mapped as a
 /// box, so a rotated grid gets the box of its rotated cells); the mapped grid origin twice when the model
 /// is empty.

@@ -2,13 +2,13 @@
 
 #include <cmath>
 #include <cstring>
-#include <fstream>
 #include <limits>
 
 #include "cip/core/atomic_file.h"
 #include "cip/core/checksum.h"
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
+#include "cip/core/mapped_file.h"
 #include "cip/model/model_file_header.h"
 #include "cip/topology/cube_topology.h"
 
@@ -235,6 +235,23 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
   return m;
 }
 
+ModelTableCounts modelTableCounts(const std::uint8_t* data, std::size_t size, const std::string& name) {
+  Reader r(data, size, name);
+  readPreamble(r, data, name);
+  std::uint32_t version;
+  std::memcpy(&version, data + sizeof(kModelMagic), 4);
+  if (version == 2) return modelTableCountsV2(data, size, name);
+  Model m;
+  if (readModelHeader(r, m) != 0) r.fail("unknown flags in the reserved byte of a version 1 header");
+  const TableCounts counts = readTableCounts(r);
+  ModelTableCounts n;
+  n.version = 1;
+  n.vertices = counts.vertices;
+  n.cells = counts.cells;
+  n.corners = counts.corners;
+  return n;
+}
+
 Model storedModel(const Model& model, const ModelFileOptions& options) {
   const std::vector<std::uint8_t> bytes = serializeModel(model, options);
   return parseModel(bytes.data(), bytes.size());
@@ -249,15 +266,9 @@ std::size_t writeModelBytes(const std::vector<std::uint8_t>& bytes, const std::s
 }
 
 Model readModel(const std::string& path) {
-  std::ifstream in(path, std::ios::binary | std::ios::ate);
-  if (!in) throw Error(path + ": cannot open model file");
-  std::streamoff size = in.tellg();
-  if (size < 0) throw Error(path + ": cannot read model file");
-  std::vector<std::uint8_t> bytes;
-  resizeHuge(bytes, static_cast<std::size_t>(size));
-  in.seekg(0);
-  if (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), size)) throw Error(path + ": read failed");
-  return parseModel(bytes.data(), bytes.size(), path);
+  const MappedFile file(path);
+  file.prefetch();
+  return parseModel(file.data(), file.size(), path);
 }
 
 }  // namespace cip

@@ -37,7 +37,12 @@ Model storedModel(const Model& model, const ModelFileOptions& options = {});
 std::size_t writeModel(const Model& model, const std::string& path, const ModelFileOptions& options = {});
 /// Writes bytes serializeModel returned, atomically.
 std::size_t writeModelBytes(const std::vector<std::uint8_t>& bytes, const std::string& path);
-/// Reads and validates a model file; throws cip::Error with the path in the message.
+/// The table counts of a model file (version 1 or 2) from its header (and version 2's chunk directory)
+/// alone, checked as parseModel checks them; throws cip::Error as parseModel does for a damaged header.
+ModelTableCounts modelTableCounts(const std::uint8_t* data, std::size_t size,
+                                  const std::string& name = "model");
+/// Reads and validates a model file; throws cip::Error with the path in the message. The file is mapped
+/// (core/mapped_file.h) and decoded from the mapping, so its bytes are not copied first.
 Model readModel(const std::string& path);
 
 }  // namespace cip

@@ -2236,6 +2236,21 @@ std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::v
   return out;
 }
 
+ModelTableCounts modelTableCountsV2(const std::uint8_t* data, std::size_t size, const std::string& name) {
+  Model m;
+  Layout L;
+  const FileHeader h = readHeader(data, size, name, m, L);
+  ModelTableCounts n;
+  n.version = 2;
+  for (const DirectoryEntry& e : h.dir) {
+    n.cells += e.cells;
+    n.vertices += e.vertices;
+  }
+  n.corners = 4 * n.vertices;
+  n.cornersExact = false;
+  return n;
+}
+
 Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string& name) {
   Model m;
   Chunks chunks;

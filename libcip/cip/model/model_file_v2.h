@@ -39,6 +39,9 @@ std::vector<std::uint8_t> serializeModelV2(const Model& model, const ModelFileV2
 /// and "framing" (stream sizes). For reports of where a file's bytes go.
 std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::vector<std::uint8_t>& file);
 
+/// modelTableCounts (model_file.h) of a version 2 file whose magic and version the caller has checked.
+ModelTableCounts modelTableCountsV2(const std::uint8_t* data, std::size_t size, const std::string& name);
+
 /// Parses a version 2 file whose magic and version the caller has checked (`data` is the whole file).
 Model parseModelV2(const std::uint8_t* data, std::size_t size, const std::string& name);
 
