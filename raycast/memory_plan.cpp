@@ -8,6 +8,7 @@
 #include <fstream>
 #include <limits>
 #include <sstream>
+#include <vector>
 
 #include "cip/core/error.h"
 
@@ -15,14 +16,14 @@ namespace cip::raycast {
 
 namespace {
 
-// Measured on gyroid models of 10 k to 635 k cells (docs/raycast.md, "Memory"; benchmarks/raycast_memory.py
+// Measured on gyroid models of 10 k to 2.5 M cells (docs/raycast.md, "Memory"; benchmarks/raycast_memory.py
 // compares the estimate with the peak): Embree's BVH over one user-geometry box per cell (127-151 bytes), the
 // version 2 decoder's buffers besides the tables at their peak (the chunks' decoded streams, the loop
-// neighbours of every vertex: 117 bytes per cell), the process before it reads anything (shared libraries,
+// neighbours of every vertex: 117-135 bytes per cell), the process before it reads anything (shared libraries,
 // 12-14 MiB) and per pixel the image's RGBA, depth, normal, id and curvature (40 bytes) and the EXR writer's
 // buffers (3-4 more).
 constexpr std::uint64_t kEmbreeBytesPerCell = 152;
-constexpr std::uint64_t kDecodeBytesPerCell = 120;
+constexpr std::uint64_t kDecodeBytesPerCell = 140;
 constexpr std::uint64_t kProcessBytes = 16u << 20;
 constexpr std::uint64_t kImageBytesPerPixel = 48;
 
@@ -38,24 +39,55 @@ bool readNumberAfter(const char* file, const std::string& key, std::uint64_t& ou
   return false;
 }
 
-/// A cgroup's limit (v2 memory.max, v1 memory.limit_in_bytes) less its usage; max() when unlimited or
-/// unknown.
-std::uint64_t cgroupRoom() {
-  std::uint64_t limit = 0, usage = 0;
-  std::ifstream v2("/sys/fs/cgroup/memory.max");
+/// A number from a cgroup file; false when the file is missing or says "max".
+bool readCgroupNumber(const std::string& file, std::uint64_t& out) {
+  std::ifstream in(file);
   std::string text;
-  if (v2 >> text) {
-    if (text == "max") return std::numeric_limits<std::uint64_t>::max();
-    limit = std::stoull(text);
-    std::ifstream cur("/sys/fs/cgroup/memory.current");
-    cur >> usage;
-  } else {
-    std::ifstream v1("/sys/fs/cgroup/memory/memory.limit_in_bytes");
-    if (!(v1 >> limit)) return std::numeric_limits<std::uint64_t>::max();
-    std::ifstream cur("/sys/fs/cgroup/memory/memory.usage_in_bytes");
-    cur >> usage;
+  if (!(in >> text) || text == "max") return false;
+  try {
+    out = std::stoull(text);
+  } catch (const std::exception&) {
+    return false;
   }
-  return limit > usage ? limit - usage : 0;
+  return true;
+}
+
+/// The room (limit less usage) that the memory cgroups of this process and of each of its ancestors leave,
+/// whichever is least: cgroup v2 (memory.max, memory.current) or v1 (memory.limit_in_bytes,
+/// memory.usage_in_bytes), found through /proc/self/cgroup. max() when no level sets a limit.
+std::uint64_t cgroupRoom() {
+  std::uint64_t room = std::numeric_limits<std::uint64_t>::max();
+  std::ifstream self("/proc/self/cgroup");
+  std::string line;
+  while (std::getline(self, line)) {
+    // "hierarchy:controllers:path": v1's memory controller, or v2's single hierarchy (id 0, no controllers).
+    const auto a = line.find(':'), b = line.find(':', a + 1);
+    if (a == std::string::npos || b == std::string::npos) continue;
+    const std::string controllers = line.substr(a + 1, b - a - 1);
+    std::string path = line.substr(b + 1);
+    bool v1 = false;
+    for (std::size_t from = 0; from <= controllers.size();) {
+      const std::size_t to = std::min(controllers.find(',', from), controllers.size());
+      v1 = v1 || controllers.compare(from, to - from, "memory") == 0;
+      from = to + 1;
+    }
+    if (!v1 && !(line.compare(0, a, "0") == 0 && controllers.empty())) continue;
+    const std::vector<std::string> roots =
+        v1 ? std::vector<std::string>{"/sys/fs/cgroup/memory"}
+           : std::vector<std::string>{"/sys/fs/cgroup", "/sys/fs/cgroup/unified"};
+    const char* limitFile = v1 ? "/memory.limit_in_bytes" : "/memory.max";
+    const char* usageFile = v1 ? "/memory.usage_in_bytes" : "/memory.current";
+    for (const std::string& root : roots) {
+      // From the process's own cgroup up to the root of the mount (a cgroup namespace shows "/" here).
+      for (std::string p = path;; p = p.substr(0, p.find_last_of('/'))) {
+        std::uint64_t limit = 0, usage = 0;
+        if (readCgroupNumber(root + p + limitFile, limit) && readCgroupNumber(root + p + usageFile, usage))
+          room = std::min(room, limit > usage ? limit - usage : 0);
+        if (p.empty() || p == "/") break;
+      }
+    }
+  }
+  return room;
 }
 
 }  // namespace
