@@ -89,6 +89,11 @@ class RayPolynomial {
   int degree_ = 0;
 };
 
+// The patch's own form (patch_ray_polynomial.h, which cannot include this header) holds as many Bernstein
+// coefficients as the general polynomial: the root search is one template over both.
+static_assert(PatchRayPolynomial::kCoefficients == RayPolynomial::kMaxDegree + 1,
+              "PatchRayPolynomial and RayPolynomial must have the same maximal degree");
+
 // Inline: rayPolynomial calls these some fifty times for every cell a ray meets.
 
 inline int RayPolynomial::addFactor(const LinearFactor& factor) {
