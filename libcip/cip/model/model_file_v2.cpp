@@ -1456,12 +1456,25 @@ bool refineIllConditionedCells(const Model& m, const Model& sk, const CellFaces&
 /// refined: a fifth of the bound docs/model-format.md states, since the estimate samples the cell sparsely.
 constexpr double kShiftTarget = 0.002;
 
+/// What refineMovingCells keeps from one round to the next, so that a round estimates again only the cells
+/// whose stored patch changed: those around the corners the last round refined, and those whose normal or
+/// side predictions these moved. The other cells' estimates would repeat the last ones, number for number.
+struct MovingCells {
+  std::vector<IsoVertex>
+      vertices;  ///< the stored vertices when last estimated (empty before the first round)
+  std::vector<std::uint8_t> moving;  ///< per cell, whether the last estimate found it moving
+};
+
+bool sameBits(double a, double b) {
+  return std::memcmp(&a, &b, sizeof a) == 0;
+}
+
 /// Refines the corners of the cells whose stored surface the codes chosen so far would move by more than
 /// kShiftTarget. `sk` holds the stored corners; its side and central coefficients are set here to what a
 /// reader will decode. Returns whether any vertex was newly refined.
 bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Chunks& chunks,
                        const std::vector<ChunkSource>& sources, const std::vector<double>& prediction,
-                       const ModelFileV2Options& q) {
+                       const ModelFileV2Options& q, MovingCells& last) {
   std::vector<double> side(prediction.size(), 0.0);
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const std::uint64_t base = chunks.list[i].faceBase;
@@ -1472,15 +1485,36 @@ bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Ch
                                q.sideStep, q.sideMantissa);
     }
   });
-  std::vector<std::uint8_t> moving(sk.cells.size(), 0);
+  const bool first = last.vertices.empty();
+  std::vector<std::uint8_t> vertexChanged(first ? 0 : sk.vertices.size());
+  if (!first)
+    tbb::parallel_for(std::size_t(0), sk.vertices.size(), [&](std::size_t v) {
+      const IsoVertex &a = sk.vertices[v], &b = last.vertices[v];
+      bool same = sameBits(a.weight, b.weight);
+      for (int i = 0; i < 3; ++i)
+        same = same && sameBits(a.position[i], b.position[i]) && sameBits(a.normal[i], b.normal[i]);
+      vertexChanged[v] = !same;
+    });
+  last.moving.resize(sk.cells.size(), 0);
+  std::vector<std::uint8_t>& moving = last.moving;
   tbb::parallel_for(std::size_t(0), sk.cells.size(), [&](std::size_t c) {
     ModelCell& cell = sk.cells[c];
-    for (std::size_t f = 0; f < 6; ++f)
-      cell.faceCoefficient[f] = cellFaces[c][f] == kNone ? 0.0 : side[cellFaces[c][f]];
-    cell.central = coefficientValue(coefficientCode(m.cells[c].central, q.centralStep, q.centralMantissa),
-                                    q.centralStep, q.centralMantissa);
-    moving[c] = surfaceShiftEstimate(m.patch(c), sk.patch(c)) > kShiftTarget;
+    bool changed = first;
+    for (std::size_t f = 0; f < 6; ++f) {
+      const double w = cellFaces[c][f] == kNone ? 0.0 : side[cellFaces[c][f]];
+      changed = changed || !sameBits(w, cell.faceCoefficient[f]);
+      cell.faceCoefficient[f] = w;
+    }
+    const double central =
+        coefficientValue(coefficientCode(m.cells[c].central, q.centralStep, q.centralMantissa), q.centralStep,
+                         q.centralMantissa);
+    changed = changed || !sameBits(central, cell.central);
+    cell.central = central;
+    for (int k = 0; !changed && k < cell.numCorners(); ++k)
+      changed = vertexChanged[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]] != 0;
+    if (changed) moving[c] = surfaceShiftEstimate(m.patch(c), sk.patch(c)) > kShiftTarget;
   });
+  last.vertices = sk.vertices;
   std::vector<std::uint8_t> keep(sk.vertices.size(), 0);
   for (std::size_t c = 0; c < sk.cells.size(); ++c)
     if (moving[c])
@@ -1751,9 +1785,10 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
       m.method == PatchMethod::Paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
   // Paper models: refine the cells around ill-conditioned faces, then those whose surface the codes would
   // still move too far (at most three rounds), coding the normals and predicting the sides again after each.
+  MovingCells moving;
   for (int round = 0;
        refine && round < 4 &&
-       (round ? refineMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q)
+       (round ? refineMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, moving)
               : (refineIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction, q.positionBits),
                  true));
        ++round) {
