@@ -169,6 +169,10 @@ template <class T>
 void appendRows(const std::vector<std::vector<T>>& rows, std::vector<T>& out) {
   std::vector<std::size_t> offset(rows.size() + 1, out.size());
   for (std::size_t r = 0; r < rows.size(); ++r) offset[r + 1] = offset[r] + rows[r].size();
+  // Grow geometrically: the scan appends brick after brick (thousands of them in a sparse volume), and
+  // reserving the exact size each time copied the whole table once per brick (a third of extracting smoke).
+  if (offset.back() > out.capacity())
+    reserveHuge(out, std::max(offset.back(), out.capacity() + out.capacity() / 2));
   resizeHuge(out, offset.back());
   tbb::parallel_for(std::size_t(0), rows.size(), [&](std::size_t r) {
     std::copy(rows[r].begin(), rows[r].end(), out.begin() + static_cast<std::ptrdiff_t>(offset[r]));
