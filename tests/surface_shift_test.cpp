@@ -31,3 +31,30 @@ TEST(SurfaceShift, ZeroForTheSamePatchAndLinearInTheChange) {
   EXPECT_GT(changed,
             static_cast<int>(m.cells.size()) / 2);  // most cells have lattice points near the surface
 }
+
+// surfaceShiftExceeds is surfaceShiftEstimate's verdict against a threshold, whatever the change and the
+// threshold: thresholds around each cell's own estimate, and changes of one coefficient and of all of them.
+TEST(SurfaceShift, ExceedsGivesTheEstimatesVerdict) {
+  for (const PatchMethod method : {PatchMethod::Paper, PatchMethod::Fitted}) {
+    const Model m = test::fieldModel("gyroid", 12, method);
+    int over = 0, under = 0;
+    for (std::size_t c = 0; c < m.cells.size(); ++c) {
+      const CornerPatch p = m.patch(c);
+      CornerPatch changed = p;
+      for (int f = 0; f < 6; ++f)
+        if ((p.faceMask >> f) & 1)
+          changed.faceCoefficient[static_cast<std::size_t>(f)] += (c % 3 == 0 ? 1e-3 : 1e-5) * (f + 1);
+      changed.central += c % 2 ? 1e-4 : 0.0;
+      const double estimate = surfaceShiftEstimate(p, changed);
+      for (const double t : {estimate * 0.5, estimate * 0.999, estimate * 1.001, estimate * 2, 0.002, 1e-6}) {
+        if (!(t > 0)) continue;
+        const bool exceeds = surfaceShiftExceeds(p, changed, t);
+        EXPECT_EQ(exceeds, estimate > t) << "cell " << c << " threshold " << t << " estimate " << estimate;
+        over += exceeds;
+        under += !exceeds;
+      }
+    }
+    EXPECT_GT(over, 100);
+    EXPECT_GT(under, 100);
+  }
+}

@@ -1512,7 +1512,7 @@ bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Ch
     cell.central = central;
     for (int k = 0; !changed && k < cell.numCorners(); ++k)
       changed = vertexChanged[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]] != 0;
-    if (changed) moving[c] = surfaceShiftEstimate(m.patch(c), sk.patch(c)) > kShiftTarget;
+    if (changed) moving[c] = surfaceShiftExceeds(m.patch(c), sk.patch(c), kShiftTarget);
   });
   last.vertices = sk.vertices;
   std::vector<std::uint8_t> keep(sk.vertices.size(), 0);

@@ -14,4 +14,10 @@ namespace cip {
 /// to second order on an uncrossed edge) that lie within a lattice step of `built`'s surface to first order.
 double surfaceShiftEstimate(const CornerPatch& built, const CornerPatch& stored);
 
+/// surfaceShiftEstimate(built, stored) > threshold (threshold > 0), the same verdict at a fraction of the
+/// cost: a lattice point within a step of the surface (|I| <= step |grad I|) can only shift by more than the
+/// threshold if |I' - I| / threshold > |I| / step, so the gradient is evaluated only where the values say so
+/// (with a margin for the two evaluations' rounding), and the search stops at the first point over it.
+bool surfaceShiftExceeds(const CornerPatch& built, const CornerPatch& stored, double threshold);
+
 }  // namespace cip
