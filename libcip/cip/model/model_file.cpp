@@ -101,8 +101,8 @@ struct TableCounts {
   std::uint64_t vertices = 0, cells = 0, corners = 0;
 };
 
-/// Magic number and version.
-void readPreamble(Reader& r, const std::uint8_t* data, const std::string& name) {
+/// Magic number and version; returns the version (1 or 2).
+std::uint32_t readPreamble(Reader& r, const std::uint8_t* data, const std::string& name) {
   r.need(sizeof(kModelMagic), "magic number");
   if (std::memcmp(data, kModelMagic, sizeof(kModelMagic)) != 0)
     throw Error(name + ": not a cip model file (bad magic number)");
@@ -112,6 +112,7 @@ void readPreamble(Reader& r, const std::uint8_t* data, const std::string& name) 
     throw Error(name + ": model file version " + std::to_string(version) +
                 " is not supported (this build reads 1 and 2)");
   }
+  return version;
 }
 
 TableCounts readTableCounts(Reader& r) {
@@ -218,17 +219,19 @@ void checkChecksum(Reader& r, const std::uint8_t* data) {
   if (stored != crc(data, bodyEnd)) r.fail("checksum mismatch");
 }
 
+/// A version 1 file's header and table counts, after the preamble.
+TableCounts readVersion1Head(Reader& r, Model& m) {
+  if (readModelHeader(r, m) != 0) r.fail("unknown flags in the reserved byte of a version 1 header");
+  return readTableCounts(r);
+}
+
 }  // namespace
 
 Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& name) {
   Reader r(data, size, name);
-  readPreamble(r, data, name);
-  std::uint32_t version;
-  std::memcpy(&version, data + sizeof(kModelMagic), 4);
-  if (version == 2) return parseModelV2(data, size, name);
+  if (readPreamble(r, data, name) == 2) return parseModelV2(data, size, name);
   Model m;
-  if (readModelHeader(r, m) != 0) r.fail("unknown flags in the reserved byte of a version 1 header");
-  const TableCounts counts = readTableCounts(r);
+  const TableCounts counts = readVersion1Head(r, m);
   readVertices(r, counts.vertices, m);
   readCells(r, counts, m);
   checkChecksum(r, data);
@@ -237,13 +240,9 @@ Model parseModel(const std::uint8_t* data, std::size_t size, const std::string& 
 
 ModelTableCounts modelTableCounts(const std::uint8_t* data, std::size_t size, const std::string& name) {
   Reader r(data, size, name);
-  readPreamble(r, data, name);
-  std::uint32_t version;
-  std::memcpy(&version, data + sizeof(kModelMagic), 4);
-  if (version == 2) return modelTableCountsV2(data, size, name);
+  if (readPreamble(r, data, name) == 2) return modelTableCountsV2(data, size, name);
   Model m;
-  if (readModelHeader(r, m) != 0) r.fail("unknown flags in the reserved byte of a version 1 header");
-  const TableCounts counts = readTableCounts(r);
+  const TableCounts counts = readVersion1Head(r, m);
   ModelTableCounts n;
   n.version = 1;
   n.vertices = counts.vertices;
