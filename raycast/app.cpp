@@ -36,6 +36,46 @@ std::optional<Vec3> vec3(const std::vector<double>& v, const char* what) {
   return Vec3(v[0], v[1], v[2]);
 }
 
+/// What --stats-json says of a model's memory (bytes).
+struct MemoryFigures {
+  std::uint64_t estimate = 0, available = 0, limit = 0, model = 0;
+};
+
+/// The model of opt.model, decoded from the file's mapping once the header has said how large it is: the
+/// render's memory plan is said on stderr (unless quiet) and a plan beyond the memory available or
+/// --memory-limit is refused (cip::Error) before anything large is allocated.
+Model readModelWithinMemory(const AppOptions& opt, int width, int height, MemoryFigures& memory) {
+  const MappedFile file(opt.model);
+  const ModelTableCounts counts = modelTableCounts(file.data(), file.size(), opt.model);
+  const MemoryPlan plan = planPatchRender(counts, width, height);
+  memory.estimate = plan.peak();
+  memory.available = availableMemory();
+  memory.limit =
+      opt.memoryLimit.empty() ? memory.available : parseByteSize(opt.memoryLimit, "--memory-limit");
+  if (!opt.quiet)
+    std::fprintf(stderr, "%s: %llu cells; needs about %s (model %s, %s %s, image %s) of %s %s\n",
+                 opt.model.c_str(), static_cast<unsigned long long>(counts.cells),
+                 formatBytes(plan.peak()).c_str(), formatBytes(plan.model).c_str(),
+                 plan.decode > plan.scene ? "decoding" : "scene",
+                 formatBytes(std::max(plan.decode, plan.scene)).c_str(), formatBytes(plan.image).c_str(),
+                 memory.limit ? formatBytes(memory.limit).c_str() : "an unknown amount",
+                 opt.memoryLimit.empty() ? "available" : "allowed (--memory-limit)");
+  if (memory.limit && plan.peak() > memory.limit)
+    throw Error(opt.model + ": rendering needs about " + formatBytes(plan.peak()) + " (model " +
+                formatBytes(plan.model) + ", scene " + formatBytes(plan.scene) + ", image " +
+                formatBytes(plan.image) + "), more than the " + formatBytes(memory.limit) + " " +
+                (opt.memoryLimit.empty() ? "this machine has available" : "that --memory-limit allows") +
+                "; free memory, render a smaller image, or pass a larger --memory-limit to try anyway");
+  file.prefetch();
+  Model model = parseModel(file.data(), file.size(), opt.model);
+  // The decoder's buffers are free now; hand their pages back before the scene is built, so that the peak is
+  // the larger of decoding and the scene over the tables, as the estimate says, not their sum.
+  malloc_trim(0);
+  memory.model =
+      ModelTableCounts{0, model.vertices.size(), model.cells.size(), model.corners.size(), true}.tableBytes();
+  return model;
+}
+
 }  // namespace
 
 std::pair<int, int> parseSize(const std::string& text) {
@@ -75,9 +115,7 @@ int runApp(const AppOptions& opt) {
   const auto t0 = Clock::now();
   Model model;
   TriangleMesh mesh;
-  struct {
-    std::uint64_t estimate = 0, available = 0, limit = 0, model = 0;
-  } memory;
+  MemoryFigures memory;
   std::unique_ptr<RenderScene> scene;
   std::string input;
   double readSeconds = 0;
@@ -92,35 +130,7 @@ int runApp(const AppOptions& opt) {
   } else {
     if (opt.model.empty()) throw Error("no input: give a model file (.cip) or --mesh mesh.ply");
     input = opt.model;
-    // The header says how large the model is before anything is decoded: refuse what cannot fit.
-    const MappedFile file(opt.model);
-    const ModelTableCounts counts = modelTableCounts(file.data(), file.size(), opt.model);
-    const MemoryPlan plan = planPatchRender(counts, width, height);
-    memory.estimate = plan.peak();
-    memory.available = availableMemory();
-    memory.limit =
-        opt.memoryLimit.empty() ? memory.available : parseByteSize(opt.memoryLimit, "--memory-limit");
-    if (!opt.quiet)
-      std::fprintf(stderr, "%s: %llu cells; needs about %s (model %s, %s %s, image %s) of %s %s\n",
-                   opt.model.c_str(), static_cast<unsigned long long>(counts.cells),
-                   formatBytes(plan.peak()).c_str(), formatBytes(plan.model).c_str(),
-                   plan.decode > plan.scene ? "decoding" : "scene",
-                   formatBytes(std::max(plan.decode, plan.scene)).c_str(), formatBytes(plan.image).c_str(),
-                   memory.limit ? formatBytes(memory.limit).c_str() : "an unknown amount",
-                   opt.memoryLimit.empty() ? "available" : "allowed (--memory-limit)");
-    if (memory.limit && plan.peak() > memory.limit)
-      throw Error(opt.model + ": rendering needs about " + formatBytes(plan.peak()) + " (model " +
-                  formatBytes(plan.model) + ", scene " + formatBytes(plan.scene) + ", image " +
-                  formatBytes(plan.image) + "), more than the " + formatBytes(memory.limit) + " " +
-                  (opt.memoryLimit.empty() ? "this machine has available" : "that --memory-limit allows") +
-                  "; free memory, render a smaller image, or pass a larger --memory-limit to try anyway");
-    file.prefetch();
-    model = parseModel(file.data(), file.size(), opt.model);
-    // The decoder's buffers are free now; hand their pages back before the scene is built, so that the peak
-    // is the larger of decoding and the scene over the tables, as the estimate says, not their sum.
-    malloc_trim(0);
-    memory.model = ModelTableCounts{0, model.vertices.size(), model.cells.size(), model.corners.size(), true}
-                       .tableBytes();
+    model = readModelWithinMemory(opt, width, height, memory);
     readSeconds = secondsSince(t0);
     PatchSceneOptions sceneOptions;
     sceneOptions.curvature = render.shading.mode == ShadingMode::Curvature;
