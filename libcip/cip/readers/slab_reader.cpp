@@ -24,6 +24,12 @@ bool loneImg(const std::string& path) {
   return !std::filesystem::exists(niftiHeaderPath(path), ec);
 }
 
+/// Throws, naming the size, when slabs of kProbeSlabSlices slices of `dims` (fewer when the volume has fewer)
+/// exceed `maxBytes` as doubles: a volume whose slices alone do not fit cannot be read in slabs either.
+void checkSlabsFit(const std::string& path, const std::array<std::int64_t, 3>& dims, std::size_t maxBytes) {
+  checkVolumeDims(path, {dims[0], dims[1], std::min<std::int64_t>(dims[2], kProbeSlabSlices)}, 1, maxBytes);
+}
+
 }  // namespace
 
 DenseVolumeProbe probeDenseVolume(const std::string& path, const VolumeReadOptions& options) {
@@ -32,10 +38,12 @@ DenseVolumeProbe probeDenseVolume(const std::string& path, const VolumeReadOptio
   switch (probe.format) {
     case VolumeFormat::Nrrd:
       probe.layout = nrrdDataLayout(path, {kNoLimit, options.frame}, probe.whyNot);
+      if (probe.layout) checkSlabsFit(path, probe.layout->geometry.dims, options.maxBytes);
       return probe;
     case VolumeFormat::Nifti:
       if (options.raw && loneImg(path)) break;
       probe.layout = niftiDataLayout(path, kNoLimit, options.frame);
+      checkSlabsFit(path, probe.layout->geometry.dims, options.maxBytes);
       return probe;
     case VolumeFormat::Raw:
       break;
@@ -48,6 +56,8 @@ DenseVolumeProbe probeDenseVolume(const std::string& path, const VolumeReadOptio
     return probe;
   }
   probe.format = VolumeFormat::Raw;
+  checkVolumeDims(path, options.raw->dims, sampleSize(options.raw->type), kNoLimit);  // overflow first
+  checkSlabsFit(path, options.raw->dims, options.maxBytes);
   probe.layout = rawDataLayout(path, *options.raw, kNoLimit);
   return probe;
 }

@@ -27,10 +27,13 @@ struct DenseVolumeProbe {
   std::string whyNot;  ///< otherwise: why the file is read whole (format, encoding, ...)
 };
 
+/// Slices of a slab that options.maxBytes must hold as doubles for a volume to be read in slabs.
+constexpr std::int64_t kProbeSlabSlices = 32;
+
 /// Reads the header of `path` and checks it as readVolume(path, options) would (format by name, frame,
-/// dims, the size of plain data), without reading samples and without options.maxBytes' limit on the whole
-/// volume (a slab reader holds only its slabs). Throws cip::Error (message starting with the path) for
-/// what readVolume would reject.
+/// dims, the size of plain data), without reading samples; options.maxBytes limits kProbeSlabSlices slices
+/// rather than the whole volume (a slab reader holds only its slabs). Throws cip::Error (message starting
+/// with the path) for what readVolume would reject, and for slices too large for options.maxBytes.
 DenseVolumeProbe probeDenseVolume(const std::string& path, const VolumeReadOptions& options = {});
 
 /// Reads slabs of z-slices of a dense volume file laid out as `layout` says.
