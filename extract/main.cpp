@@ -473,7 +473,7 @@ int main(int argc, char** argv) {
          "(docs/volumes.md), e.g. --stream on")
       ->check(CLI::IsMember({"auto", "on", "off"}));
   app.add_option("--slab-cells", opt.slabCells,
-                 "with --stream: cells along z each slab owns (default 0: slabs of about 128 MiB of samples "
+                 "with --stream: cells along z each slab owns (default 0: slabs of about 64 MiB of samples "
                  "with their halo), "
                  "e.g. --slab-cells 8")
       ->check(CLI::Range(std::int64_t(0), std::int64_t(1) << 40));

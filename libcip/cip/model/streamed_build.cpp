@@ -108,7 +108,9 @@ class SlabWindow {
       std::memmove(grid_.values.data(), grid_.values.data() + (lo - lo_) * slice_,
                    static_cast<std::size_t>(have * slice_) * sizeof(double));
     }
-    grid_.values.resize(static_cast<std::size_t>((hi - lo + 1) * slice_));
+    const auto size = static_cast<std::size_t>((hi - lo + 1) * slice_);
+    if (size > grid_.values.capacity()) grid_.values.reserve(size);  // exactly: resize alone may double it
+    grid_.values.resize(size);
     if (lo + have <= hi) read_(lo + have, hi + 1, grid_.values.data() + have * slice_);
     grid_.geometry.dims[2] = hi - lo + 1;
     lo_ = lo;
@@ -279,6 +281,7 @@ Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const B
   harvest.sharedPlane.clear();
   mark = Clock::now();
   const std::vector<CellLoops> loops = build::assembleCells(in, harvest.cells, harvest.edges, model);
+  harvest.edges = std::vector<build::EdgeRef>();  // the fitting needs the cells, not the edges
   timings.assemble = secondsSince(mark);
   mark = Clock::now();
   if (build::fitsModelWide(o)) build::fitCoefficients(in, harvest.cells, harvest.reference, loops, model);

@@ -23,7 +23,7 @@ using SliceSource = std::function<void(std::int64_t z0, std::int64_t z1, double*
 struct StreamOptions {
   /// Cells along z each slab owns; 0: as many as keep the slab's samples (halo included) near slabBytes.
   std::int64_t slabCells = 0;
-  std::size_t slabBytes = std::size_t(128) << 20;
+  std::size_t slabBytes = std::size_t(64) << 20;
 };
 
 /// How a streamed build went (for --stats-json).
