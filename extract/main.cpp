@@ -482,7 +482,8 @@ int main(int argc, char** argv) {
   app.add_option("--stats-json", opt.statsJson,
                  "write run statistics as JSON (counts, timings, and for --method fitted the "
                  "cells its sign checks could not satisfy and the holes at uncrossed edges it found and "
-                 "closed), e.g. --stats-json stats.json");
+                 "closed; \"stream\": whether and in which slabs the volume was streamed; "
+                 "\"peak_rss_bytes\": the peak resident memory), e.g. --stats-json stats.json");
   app.add_option("--threads", opt.threads,
                  "worker threads, 0 = all (default); the model does not depend on it, e.g. --threads 1")
       ->check(CLI::Range(0, 1024));
