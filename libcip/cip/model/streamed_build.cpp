@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
+#include <limits>
 #include <numeric>
 #include <optional>
 
@@ -266,9 +267,11 @@ Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const B
   }
   field = DenseGrid();
   auto mark = Clock::now();
-  sortEdges(harvest);
   if (harvest.edges.size() > std::numeric_limits<std::uint32_t>::max())
     throw Error("too many isovertices for one model");
+  sortEdges(harvest);
+  if (!std::is_sorted(harvest.cells.begin(), harvest.cells.end()))  // slabs in z order give key order
+    std::stable_sort(harvest.cells.begin(), harvest.cells.end());
   timings.isovertices += secondsSince(mark);
   progress.set(0.5);
   Model model;
