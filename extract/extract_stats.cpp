@@ -1,5 +1,7 @@
 #include "extract_stats.h"
 
+#include <sys/resource.h>
+
 #include <cmath>
 #include <nlohmann/json.hpp>
 
@@ -69,6 +71,18 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
                   {"bounds", {{"lo", {lo[0], lo[1], lo[2]}}, {"hi", {hi[0], hi[1], hi[2]}}}},
                   {"index_to_world", rows}};
   }
+  j["stream"] = {{"streamed", s.stream.has_value()}};
+  if (s.stream) {
+    j["stream"]["slabs"] = s.stream->slabs;
+    j["stream"]["slab_cells"] = s.stream->slabCells;
+    j["stream"]["halo_slices"] = s.stream->halo;
+    j["stream"]["passes"] = s.stream->passes;
+    j["stream"]["window_bytes"] = s.stream->windowBytes;
+    j["stream"]["read_seconds"] = s.stream->readSeconds;
+  }
+  struct rusage usage {};
+  if (getrusage(RUSAGE_SELF, &usage) == 0)
+    j["peak_rss_bytes"] = static_cast<std::int64_t>(usage.ru_maxrss) * 1024;
   j["seconds"] = s.seconds;
   j["bytes_written"] = s.bytesWritten;
   std::string text = j.dump(2) + "\n";

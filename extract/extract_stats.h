@@ -7,6 +7,7 @@
 #include "cip/measure/model_displacement.h"
 #include "cip/model/model.h"
 #include "cip/model/patch_fitting.h"
+#include "cip/model/streamed_build.h"
 
 namespace cip {
 
@@ -24,8 +25,9 @@ struct ExtractStats {
   /// used.
   std::optional<std::vector<std::uint32_t>> holeCells;
   int holeLattice = 0;
-  int modelVersion = 2;  ///< the format the model file was written in
-  WorldTransform world;  ///< grid frame -> the world the meshes and "world" stats are given in
+  int modelVersion = 2;               ///< the format the model file was written in
+  std::optional<StreamStats> stream;  ///< set when the volume was built slab by slab (--stream)
+  WorldTransform world;               ///< grid frame -> the world the meshes and "world" stats are given in
 };
 
 /// Writes the stats and the model's counts (the file format version, non-empty cells, isovertices, corners,
@@ -37,6 +39,9 @@ struct ExtractStats {
 /// --check-storage, "storage": how far the stored model's surface lies from the built one's
 /// (model_displacement.h). With --check-holes, "holes": the cells whose patch leaks through an open face
 /// ("open_face_leak_cells", their count; "cells", the grid index (i, j, k) of the first 1000; "lattice").
+/// "stream": whether the volume was built slab by slab ("streamed") and, when it was, the slabs per pass,
+/// the cells each owns, the halo slices, the passes over the file, the bytes of samples held at once and the
+/// seconds spent reading. "peak_rss_bytes": the process's peak resident memory so far (getrusage).
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

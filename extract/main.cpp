@@ -25,6 +25,7 @@
 #include "cip/volume/analytic_field.h"
 #include "extract_stats.h"
 #include "huge_page_restart.h"
+#include "streamed_input.h"
 
 namespace {
 
@@ -36,7 +37,9 @@ double secondsSince(Clock::time_point t) {
 struct Options {
   std::string input, output, mcMesh, patchMesh, statsJson;
   std::string normals = "gradient", central = "zero", method = "fitted", reconstruction = "auto";
-  std::string space;  ///< --space: world frame of the outputs (empty = the volume's own)
+  std::string stream = "auto";  ///< --stream
+  std::int64_t slabCells = 0;   ///< --slab-cells
+  std::string space;            ///< --space: world frame of the outputs (empty = the volume's own)
   std::optional<double> iso;
   int resolution = 64, subdiv = 4, threads = 0, modelVersion = 2;
   bool quiet = false, skipNonFinite = false, checkStorage = false, checkHoles = false, labels = false;
@@ -54,11 +57,17 @@ cip::Vec3 vec3(const std::vector<double>& v, const cip::Vec3& fallback, const ch
   return cip::Vec3(v[0], v[1], v[2]);
 }
 
-/// The volume to build from: a file's bricks, or an analytic field sampled on a grid.
+/// The volume to build from: a file's bricks, a dense file read slab by slab, or an analytic field sampled on
+/// a grid.
 struct Input {
   cip::SparseVolume volume;
-  std::unique_ptr<cip::AnalyticField> field;  ///< set for analytic fields (exact normals need it)
-  std::optional<double> defaultIso;           ///< the input's own isovalue, when it has one
+  std::unique_ptr<cip::StreamedVolume> streamed;  ///< set when the file is built slab by slab (--stream)
+  std::unique_ptr<cip::AnalyticField> field;      ///< set for analytic fields (exact normals need it)
+  std::optional<double> defaultIso;               ///< the input's own isovalue, when it has one
+
+  const cip::GridGeometry& geometry() const {
+    return streamed ? streamed->layout().geometry : volume.geometry;
+  }
 };
 
 /// What the command line asks the builder for, all but the isovalue (which may come from the input).
@@ -121,13 +130,29 @@ Input readInput(const Options& opt, const cip::BuildOptions& build, cip::Extract
   read.vdbGrid = opt.grid;
   read.frame = opt.frame;
   read.apron = cip::brickApron(build);
+  if (auto layout = cip::streamedLayout(opt.input, read, build, cip::parseStreamMode(opt.stream))) {
+    stats.inputType = cip::describeDenseVolume(layout->geometry, layout->description);
+    in.streamed = std::make_unique<cip::StreamedVolume>(std::move(*layout));
+    return in;
+  }
   in.volume = cip::readVolume(opt.input, read);
   if (in.volume.isLevelSet) in.defaultIso = 0.0;
   stats.inputType = cip::describeVolume(in.volume);
   return in;
 }
 
-/// The isovalue: --iso, else the input's own; warns when it lies outside the data.
+/// Warns when the isovalue lies outside the range of the data.
+void warnOutsideRange(double iso, std::pair<double, double> range) {
+  const auto [lo, hi] = range;
+  if (!(iso > lo && iso < hi)) {
+    std::fprintf(stderr,
+                 "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n", iso,
+                 lo, hi);
+  }
+}
+
+/// The isovalue: --iso, else the input's own; warns when it lies outside the data (a streamed volume's range
+/// is known after the build, which warns then).
 double isovalue(const Options& opt, const Input& in) {
   double iso = 0;
   if (opt.iso) {
@@ -137,12 +162,7 @@ double isovalue(const Options& opt, const Input& in) {
   } else {
     throw cip::Error(opt.input + ": no default isovalue for this input; give one with --iso");
   }
-  auto [lo, hi] = in.volume.range();
-  if (!(iso > lo && iso < hi)) {
-    std::fprintf(stderr,
-                 "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n", iso,
-                 lo, hi);
-  }
+  if (!in.streamed) warnOutsideRange(iso, in.volume.range());
   return iso;
 }
 
@@ -246,7 +266,17 @@ cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options,
   }
   cip::Model model;
   try {
-    model = cip::buildModel(in.volume.geometry, in.volume.bricks, options, in.volume.description);
+    if (in.streamed) {
+      cip::StreamOptions stream;
+      stream.slabCells = opt.slabCells;
+      cip::StreamStats streamStats;
+      model = cip::buildModelStreamed(in.geometry(), in.streamed->source(), options,
+                                      in.streamed->layout().description, stream, &streamStats);
+      stats.stream = streamStats;
+      if (!opt.labels && !opt.label) warnOutsideRange(options.isovalue, in.streamed->range());
+    } else {
+      model = cip::buildModel(in.volume.geometry, in.volume.bricks, options, in.volume.description);
+    }
   } catch (const cip::NonFiniteSampleError& e) {
     throw cip::Error(std::string(e.what()) + "; use --skip-nonfinite to leave such cells empty");
   }
@@ -278,13 +308,13 @@ int run(const Options& opt) {
   if (opt.labels) readOptions.label = 0;
   Input in = readInput(opt, readOptions, stats);
   // A --space the volume cannot be converted to fails here, before the build.
-  stats.world = cip::WorldTransform::of(in.volume.geometry, outputSpace(opt));
-  stats.dims = in.volume.geometry.dims;
+  stats.world = cip::WorldTransform::of(in.geometry(), outputSpace(opt));
+  stats.dims = in.geometry().dims;
   stats.seconds["read"] = secondsSince(t0);
 
   options.isovalue = opt.labels || opt.label ? 0.0 : isovalue(opt, in);
   if (opt.labels) {
-    const std::vector<std::int64_t> labels = cip::labelsOf(in.volume);
+    const std::vector<std::int64_t> labels = in.streamed ? in.streamed->labels() : cip::labelsOf(in.volume);
     if (labels.empty()) throw cip::Error(opt.input + ": --labels found no non-zero label");
     for (const std::int64_t label : labels) {
       Options one = opt;
@@ -434,12 +464,26 @@ int main(int argc, char** argv) {
          "NIfTI, LPS for DICOM and MetaImage); the model keeps the volume's, e.g. --space lps")
       ->transform(CLI::detail::to_lower)
       ->check(CLI::IsMember({"ras", "las", "lps"}));
+  app.add_option(
+         "--stream", opt.stream,
+         "dense volume files (raw, NRRD with raw, gzip or bzip2 data, NIfTI): build the model slab by slab "
+         "of z-slices, holding one slab and its halo at a time instead of the whole volume: auto (default: "
+         "when the samples as doubles take 1 GiB or more), on (always; an error when the file or options "
+         "cannot be streamed) or off (read the whole volume). The model is the same byte for byte "
+         "(docs/volumes.md), e.g. --stream on")
+      ->check(CLI::IsMember({"auto", "on", "off"}));
+  app.add_option("--slab-cells", opt.slabCells,
+                 "with --stream: cells along z each slab owns (default 0: slabs of about 64 MiB of samples "
+                 "with their halo), "
+                 "e.g. --slab-cells 8")
+      ->check(CLI::Range(std::int64_t(0), std::int64_t(1) << 40));
   app.add_option("--subdiv", opt.subdiv, "patch mesh: samples per cell edge (default 4), e.g. --subdiv 8")
       ->check(CLI::Range(1, 64));
   app.add_option("--stats-json", opt.statsJson,
                  "write run statistics as JSON (counts, timings, and for --method fitted the "
                  "cells its sign checks could not satisfy and the holes at uncrossed edges it found and "
-                 "closed), e.g. --stats-json stats.json");
+                 "closed; \"stream\": whether and in which slabs the volume was streamed; "
+                 "\"peak_rss_bytes\": the peak resident memory), e.g. --stats-json stats.json");
   app.add_option("--threads", opt.threads,
                  "worker threads, 0 = all (default); the model does not depend on it, e.g. --threads 1")
       ->check(CLI::Range(0, 1024));

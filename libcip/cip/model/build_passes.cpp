@@ -26,6 +26,34 @@ Key GridKeys::cellEdge(const std::array<std::int64_t, 3>& cell, int e) const {
   return point(cell[0] + c[0], cell[1] + c[1], cell[2] + c[2]) * 3 + cube::edgeAxis(e);
 }
 
+MaskRule maskRule(const BuildOptions& options) {
+  const bool sampled = options.method == PatchMethod::Fitted && options.normals != NormalMode::Exact;
+  const bool asked = options.label || options.reconstruction == Reconstruction::Mask;
+  if (asked && !sampled)
+    throw Error(
+        "the mask reference (labels, reconstruction mask) needs the fitted method with gradient or edge "
+        "normals");
+  if (asked) return MaskRule::Mask;
+  if (!sampled || options.reconstruction != Reconstruction::Auto || options.exactField)
+    return MaskRule::Samples;
+  return MaskRule::Detect;
+}
+
+DenseGrid maskField(const DenseGrid& samples, const BuildOptions& options, std::int64_t firstSliceZ) {
+  if (!options.label) return smoothMask(samples, options.isovalue);
+  return smoothClass(
+      samples, [](double v) { return static_cast<std::int64_t>(std::llround(v)); }, *options.label,
+      firstSliceZ);
+}
+
+BuildOptions maskFieldOptions(const BuildOptions& options) {
+  BuildOptions o = options;
+  o.reconstruction = Reconstruction::Central8;
+  o.label.reset();
+  if (options.label) o.isovalue = 0;
+  return o;
+}
+
 std::array<std::int64_t, 3> localPoint(const GridBrick& brick, const std::array<std::int64_t, 3>& global) {
   return {global[0] - brick.offset[0], global[1] - brick.offset[1], global[2] - brick.offset[2]};
 }
@@ -476,6 +504,19 @@ CellLoops assembleCell(const Input& in, const CellRef& cell, EdgeCursors& edges,
 
 }  // namespace
 
+namespace {
+
+/// Throws the NonFiniteSampleError of the first cell the scan found with a non-finite corner, if any.
+void throwIfNonFinite(const NonFiniteCell& bad) {
+  if (!bad.found) return;
+  const auto& at = bad.at;
+  throw NonFiniteSampleError("NaN or infinite voxel value in cell (" + std::to_string(at[0]) + "," +
+                                 std::to_string(at[1]) + "," + std::to_string(at[2]) + ")",
+                             {at[0], at[1], at[2]});
+}
+
+}  // namespace
+
 CellScan scanCells(const Input& in) {
   CellScan scan;
   RowCount rows;
@@ -484,13 +525,39 @@ CellScan scanCells(const Input& in) {
                   std::max<std::int64_t>(0, b.cellEnd[2] - b.cellBegin[2]);
   NonFiniteCell bad;
   for (std::uint32_t bi = 0; bi < in.bricks.size(); ++bi) scanBrick(in, bi, rows, bad, scan);
-  if (bad.found) {
-    const auto& at = bad.at;
-    throw NonFiniteSampleError("NaN or infinite voxel value in cell (" + std::to_string(at[0]) + "," +
-                                   std::to_string(at[1]) + "," + std::to_string(at[2]) + ")",
-                               {at[0], at[1], at[2]});
-  }
+  throwIfNonFinite(bad);
   return scan;
+}
+
+CellScan scanBrickCells(const Input& in, std::uint32_t brick) {
+  CellScan scan;
+  RowCount rows;
+  const GridBrick& b = in.bricks[brick];
+  rows.total = std::max<std::int64_t>(1, (b.cellEnd[1] - b.cellBegin[1]) * (b.cellEnd[2] - b.cellBegin[2]));
+  NonFiniteCell bad;
+  scanBrick(in, brick, rows, bad, scan);
+  throwIfNonFinite(bad);
+  scan.edges = uniqueEdges(std::move(scan.edges), scan.edgesUnique);
+  scan.edgesUnique = true;
+  return scan;
+}
+
+void addToEstimate(const Input& in, const std::vector<CellRef>& cells, SamplingEstimator& estimator) {
+  for (const CellRef& c : cells) {
+    const GridBrick& b = in.bricks[c.brick];
+    estimator.addCell(*b.grid, localPoint(b, in.keys.coords(c.key)));
+  }
+}
+
+PointHermiteTable brickReference(const Input& in, const std::vector<CellRef>& cells, Reconstruction kind) {
+  if (cells.empty()) return {};
+  const GridBrick& b = in.bricks[cells[0].brick];
+  std::vector<std::int64_t> local(cells.size());
+  tbb::parallel_for(std::size_t(0), cells.size(), [&](std::size_t n) {
+    const auto lp = localPoint(b, in.keys.coords(cells[n].key));
+    local[n] = b.grid->index(lp[0], lp[1], lp[2]);
+  });
+  return PointHermiteTable(*b.grid, local, kind);
 }
 
 SampledReference prepareReference(const Input& in, const std::vector<CellRef>& cells) {
@@ -500,31 +567,20 @@ SampledReference prepareReference(const Input& in, const std::vector<CellRef>& c
   if (!reference.sampled) return reference;
   if (reference.kind == Reconstruction::Auto) {
     SamplingEstimator estimator;
-    for (const CellRef& c : cells) {
-      const GridBrick& b = in.bricks[c.brick];
-      estimator.addCell(*b.grid, localPoint(b, in.keys.coords(c.key)));
-    }
+    addToEstimate(in, cells, estimator);
     reference.sampling = estimator.estimate();
     reference.kind = chooseReconstruction(reference.sampling);
   }
   // The data at the corners of each brick's crossed cells, once per grid point.
   reference.tables.resize(in.bricks.size());
-  std::vector<std::vector<std::int64_t>> brickCells(in.bricks.size());
-  auto localIndex = [&](const CellRef& c) {
-    const GridBrick& b = in.bricks[c.brick];
-    const auto lp = localPoint(b, in.keys.coords(c.key));
-    return b.grid->index(lp[0], lp[1], lp[2]);
-  };
-  if (in.bricks.size() == 1) {  // every cell in order: in parallel
-    brickCells[0].resize(cells.size());
-    tbb::parallel_for(std::size_t(0), cells.size(),
-                      [&](std::size_t n) { brickCells[0][n] = localIndex(cells[n]); });
-  } else {
-    for (const CellRef& c : cells) brickCells[c.brick].push_back(localIndex(c));
+  if (in.bricks.size() == 1) {  // every cell in order
+    reference.tables[0] = brickReference(in, cells, reference.kind);
+    return reference;
   }
+  std::vector<std::vector<CellRef>> brickCells(in.bricks.size());
+  for (const CellRef& c : cells) brickCells[c.brick].push_back(c);
   tbb::parallel_for(std::size_t(0), in.bricks.size(), [&](std::size_t bi) {
-    if (!brickCells[bi].empty())
-      reference.tables[bi] = PointHermiteTable(*in.bricks[bi].grid, brickCells[bi], reference.kind);
+    reference.tables[bi] = brickReference(in, brickCells[bi], reference.kind);
   });
   return reference;
 }

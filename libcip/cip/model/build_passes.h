@@ -13,6 +13,7 @@
 
 #include "cip/model/model.h"
 #include "cip/model/model_builder.h"
+#include "cip/reference/mask_reference.h"
 #include "cip/reference/point_hermite_table.h"
 #include "cip/reference/reconstruction_choice.h"
 
@@ -68,6 +69,42 @@ class Progress {
   double last_ = -1;
 };
 
+/// Whether a build follows the smoothed indicator of a mask or label (mask_reference.h) instead of the
+/// samples: never, always (asked for: a label, or Reconstruction::Mask), or when the samples next to the
+/// surface take two values in every brick (Auto on sampled data: detect it).
+enum class MaskRule : std::uint8_t { Samples, Mask, Detect };
+/// The rule of `options`; throws cip::Error when the mask is asked for without the fitted construction's
+/// reference of the samples.
+MaskRule maskRule(const BuildOptions& options);
+
+/// MaskRule::Detect's verdict over bricks, told each brick's detectTwoValued in turn: the mask when some
+/// brick saw the surface and every such brick saw the same two values.
+class TwoValuedVerdict {
+ public:
+  void add(const TwoValuedSamples& t) {
+    if (failed_ || t.points == 0) return;
+    if (!t.twoValued || (seen_ && (below_ != t.below || above_ != t.above))) {
+      failed_ = true;
+      return;
+    }
+    seen_ = true;
+    below_ = t.below;
+    above_ = t.above;
+  }
+  bool mask() const { return seen_ && !failed_; }
+  bool decided() const { return failed_; }  ///< no further brick can make it the mask
+
+ private:
+  bool seen_ = false, failed_ = false;
+  double below_ = 0, above_ = 0;
+};
+
+/// The field a mask's model is built from, of one brick's samples: smoothMask, or smoothClass of the label
+/// (with its blocks placed along z as in the volume whose slice `firstSliceZ` is the brick's first).
+DenseGrid maskField(const DenseGrid& samples, const BuildOptions& options, std::int64_t firstSliceZ = 0);
+/// The options the mask's model is built with from maskField's bricks (Central8, the label's isovalue 0).
+BuildOptions maskFieldOptions(const BuildOptions& options);
+
 /// What every pass reads.
 struct Input {
   const GridGeometry& geometry;  ///< the global grid
@@ -97,6 +134,16 @@ struct CellScan {
 /// Pass 1, progress 0 to 0.3. Throws NonFiniteSampleError for a cell with a NaN or infinite corner value
 /// unless options.skipNonFinite (then the cell is left out).
 CellScan scanCells(const Input& in);
+
+/// Pass 1 over brick `brick` alone (a streamed build scans one slab of the volume at a time): its crossed
+/// cells in key order and their crossed edges sorted by key, each once (edgesUnique). Throws as scanCells.
+CellScan scanBrickCells(const Input& in, std::uint32_t brick);
+
+/// Adds `cells` (crossed cells, in scan order) to Auto's estimate, from the samples of their bricks.
+void addToEstimate(const Input& in, const std::vector<CellRef>& cells, SamplingEstimator& estimator);
+
+/// The reference's data (`kind`, resolved) at the corners of `cells`, crossed cells of one brick.
+PointHermiteTable brickReference(const Input& in, const std::vector<CellRef>& cells, Reconstruction kind);
 
 /// The reference of the samples: with the fitted construction, unless exact, the reconstruction (Auto
 /// resolved) and its Hermite data at the corners of the crossed cells, one table per brick.

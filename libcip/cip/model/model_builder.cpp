@@ -62,51 +62,32 @@ namespace {
 Model buildSampled(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
                    const BuildOptions& options, const std::string& source);
 
-/// Whether the build follows the smoothed indicator of a mask or label (mask_reference.h): asked for, or
-/// Auto on samples with two values next to the surface in every brick. Throws when asked for without the
-/// fitted construction's reference of the samples.
+/// Whether the build follows the smoothed indicator of a mask or label (build::maskRule; Detect: the samples
+/// of every brick two-valued next to the surface).
 bool followsMask(const std::vector<GridBrick>& bricks, const BuildOptions& options) {
-  const bool sampled = options.method == PatchMethod::Fitted && options.normals != NormalMode::Exact;
-  const bool asked = options.label || options.reconstruction == Reconstruction::Mask;
-  if (asked && !sampled)
-    throw Error(
-        "the mask reference (labels, reconstruction mask) needs the fitted method with gradient or edge "
-        "normals");
-  if (asked) return true;
-  if (!sampled || options.reconstruction != Reconstruction::Auto || options.exactField) return false;
-  std::optional<TwoValuedSamples> all;
+  const build::MaskRule rule = build::maskRule(options);
+  if (rule != build::MaskRule::Detect) return rule == build::MaskRule::Mask;
+  build::TwoValuedVerdict verdict;
   for (const GridBrick& b : bricks) {
-    const TwoValuedSamples t = detectTwoValued(*b.grid, options.isovalue);
-    if (t.points == 0) continue;
-    if (!t.twoValued || (all && (all->below != t.below || all->above != t.above))) return false;
-    all = t;
+    verdict.add(detectTwoValued(*b.grid, options.isovalue));
+    if (verdict.decided()) break;
   }
-  return all.has_value();
+  return verdict.mask();
 }
 
-/// The model of the smoothed indicator: each brick's field (smoothMask or smoothClass), built with Central8
+/// The model of the smoothed indicator: each brick's field (build::maskField), built with Central8
 /// derivatives and recorded as Reconstruction::Mask.
 Model buildMask(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
                 const BuildOptions& options, const std::string& source) {
   const auto start = std::chrono::steady_clock::now();
   std::vector<DenseGrid> fields(bricks.size());
   std::vector<GridBrick> fieldBricks = bricks;
-  BuildOptions o = options;
-  o.reconstruction = Reconstruction::Central8;
-  o.label.reset();
   for (std::size_t b = 0; b < bricks.size(); ++b) {
-    if (options.label) {
-      const std::int64_t label = *options.label;
-      fields[b] = smoothClass(
-          *bricks[b].grid, [](double v) { return static_cast<std::int64_t>(std::llround(v)); }, label);
-    } else {
-      fields[b] = smoothMask(*bricks[b].grid, options.isovalue);
-    }
+    fields[b] = build::maskField(*bricks[b].grid, options);
     fieldBricks[b].grid = &fields[b];
   }
-  if (options.label) o.isovalue = 0;
   const double smoothing = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  Model model = buildSampled(geometry, fieldBricks, o, source);
+  Model model = buildSampled(geometry, fieldBricks, build::maskFieldOptions(options), source);
   model.reconstruction = Reconstruction::Mask;
   if (options.fittingStats) options.fittingStats->reconstruction = Reconstruction::Mask;
   if (options.timings) options.timings->reference += smoothing;

@@ -397,11 +397,10 @@ NiftiHeader readNiftiHeader(const std::string& path) {
 
 namespace {
 
-/// Opens the samples of frame `frame` of a plain data file, checking the file holds exactly the declared
-/// frames from `offset`.
-std::unique_ptr<ByteSource> openPlainFrame(const std::string& path, const NiftiHeader& h,
-                                           std::uint64_t frameBytes, std::uint64_t allBytes,
-                                           std::int64_t frame) {
+/// The byte of frame `frame` of a plain data file, checking the file holds exactly the declared frames from
+/// the header's data offset.
+std::uint64_t plainFrameOffset(const std::string& path, const NiftiHeader& h, std::uint64_t frameBytes,
+                               std::uint64_t allBytes, std::int64_t frame) {
   const std::uint64_t fileBytes = fileSizeOf(path);
   if (h.dataOffset > fileBytes) {
     throw Error(path + ": data offset " + std::to_string(h.dataOffset) + " is beyond the end of the file (" +
@@ -418,8 +417,7 @@ std::unique_ptr<ByteSource> openPlainFrame(const std::string& path, const NiftiH
                 " = " + std::to_string(allBytes) + " bytes from byte " + std::to_string(h.dataOffset) +
                 ", file has " + std::to_string(fileBytes) + ")");
   }
-  return std::make_unique<FileByteSource>(path,
-                                          h.dataOffset + static_cast<std::uint64_t>(frame) * frameBytes);
+  return h.dataOffset + static_cast<std::uint64_t>(frame) * frameBytes;
 }
 
 /// Opens the inflated samples of frame `frame` of a compressed data file.
@@ -439,6 +437,13 @@ std::unique_ptr<ByteSource> openCompressedFrame(const std::string& path, const N
   return source;
 }
 
+/// The grid description of frame `chosen` of the NIfTI file `path`.
+std::string niftiDescription(const std::string& path, const NiftiHeader& h, std::int64_t chosen) {
+  std::string d = describeDenseFile(path, h.version == 1 ? "NIfTI" : "NIfTI-2", h.type, h.geometry.dims);
+  if (h.frames > 1) d += ", frame " + std::to_string(chosen) + " of " + std::to_string(h.frames);
+  return d;
+}
+
 DenseGrid readNiftiFile(const std::string& path, std::size_t maxBytes, int frame) {
   const std::string headerPath = niftiHeaderPath(path);
   NiftiHeader h = readNiftiHeader(headerPath);
@@ -448,8 +453,10 @@ DenseGrid readNiftiFile(const std::string& path, std::size_t maxBytes, int frame
   const std::uint64_t frameBytes = span.frameBytes, allBytes = span.allBytes;
 
   const bool gz = isGzip(dataPath);
-  std::unique_ptr<ByteSource> source = gz ? openCompressedFrame(dataPath, h, frameBytes, chosen)
-                                          : openPlainFrame(dataPath, h, frameBytes, allBytes, chosen);
+  std::unique_ptr<ByteSource> source =
+      gz ? openCompressedFrame(dataPath, h, frameBytes, chosen)
+         : std::make_unique<FileByteSource>(dataPath,
+                                            plainFrameOffset(dataPath, h, frameBytes, allBytes, chosen));
   DenseGrid grid;
   grid.allocate(h.geometry.dims, maxBytes);
   readSamplesInto(*source, h.type, h.endian, grid);
@@ -458,13 +465,51 @@ DenseGrid readNiftiFile(const std::string& path, std::size_t maxBytes, int frame
     for (double& v : grid.values) v = h.slope * v + h.inter;
   }
   grid.geometry = h.geometry;
-  grid.description = describeDenseFile(path, h.version == 1 ? "NIfTI" : "NIfTI-2", h.type, h.geometry.dims);
-  if (h.frames > 1)
-    grid.description += ", frame " + std::to_string(chosen) + " of " + std::to_string(h.frames);
+  grid.description = niftiDescription(path, h, chosen);
   return grid;
 }
 
+DenseDataLayout niftiLayout(const std::string& path, std::size_t maxBytes, int frame) {
+  const std::string headerPath = niftiHeaderPath(path);
+  const NiftiHeader h = readNiftiHeader(headerPath);
+  const std::string dataPath = niftiDataPath(headerPath, h);
+  const FrameSpan span = checkFrameSpan(path, h.geometry.dims, sampleSize(h.type), h.frames, frame, maxBytes);
+  DenseDataLayout layout;
+  layout.path = path;
+  layout.dataPath = dataPath;
+  if (isGzip(dataPath)) {
+    if (h.dataOffset > (std::uint64_t(1) << 30)) {
+      throw Error(dataPath + ": vox_offset " + std::to_string(h.dataOffset) +
+                  " is too large for compressed data (at most 1 GiB)");
+    }
+    layout.encoding = DataEncoding::Gzip;
+    layout.offset = h.dataOffset + static_cast<std::uint64_t>(span.chosen) * span.frameBytes;
+    layout.checkEnd = span.chosen == h.frames - 1;
+  } else {
+    fileSizeOf(dataPath);
+    layout.offset = plainFrameOffset(dataPath, h, span.frameBytes, span.allBytes, span.chosen);
+  }
+  layout.type = h.type;
+  layout.endian = h.endian;
+  if (h.slope != 0) {
+    layout.slope = h.slope;
+    layout.inter = h.inter;
+  }
+  layout.geometry = h.geometry;
+  layout.description = niftiDescription(path, h, span.chosen);
+  return layout;
+}
+
 }  // namespace
+
+DenseDataLayout niftiDataLayout(const std::string& path, std::size_t maxBytes, int frame) {
+  DenseDataLayout layout;
+  readPrefixingErrors(path, [&] {
+    layout = niftiLayout(path, maxBytes, frame);
+    return DenseGrid();
+  });
+  return layout;
+}
 
 DenseGrid readNifti(const std::string& path, std::size_t maxBytes, int frame) {
   return readPrefixingErrors(path, [&] { return readNiftiFile(path, maxBytes, frame); });

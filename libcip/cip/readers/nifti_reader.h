@@ -21,6 +21,7 @@
 #include <cstdint>
 #include <string>
 
+#include "cip/readers/volume_input.h"
 #include "cip/volume/dense_grid.h"
 #include "cip/volume/sample_type.h"
 
@@ -71,6 +72,11 @@ std::string niftiDataPath(const std::string& headerPath, const NiftiHeader& head
 /// doubles (checked before allocating).
 DenseGrid readNifti(const std::string& path, std::size_t maxBytes = DenseGrid::defaultMaxBytes(),
                     int frame = -1);
+
+/// The checks of readNifti (header, frame, dims, the size of plain data) and where the chosen frame's samples
+/// lie, with the value scaling, without reading them (slab_reader.h). Errors start with the path.
+DenseDataLayout niftiDataLayout(const std::string& path, std::size_t maxBytes = DenseGrid::defaultMaxBytes(),
+                                int frame = -1);
 
 struct NiftiWriteOptions {
   /// When nonzero, samples are stored as (value - sclInter) / sclSlope and the header carries

@@ -902,6 +902,56 @@ std::vector<std::string> nrrdDataPaths(const std::string& path, const NrrdHeader
   return paths;
 }
 
+std::optional<DenseDataLayout> nrrdDataLayout(const std::string& path, const NrrdReadOptions& options,
+                                              std::string& whyNot) {
+  const NrrdHeader h = readNrrdHeader(path);
+  const std::uint64_t frame = chooseFrame(path, h, options.frame);
+  const std::size_t size = sampleSize(h.type);
+  const auto count = static_cast<std::uint64_t>(checkVolumeDims(path, h.dims, size, options.maxBytes));
+  const auto frames = static_cast<std::uint64_t>(h.frames);
+  if (frames > std::numeric_limits<std::uint64_t>::max() / size / count) {
+    throw Error(path + ": " + std::to_string(frames) + " frames of " + std::to_string(count) +
+                " samples overflow 64 bits");
+  }
+  const std::vector<std::string> paths = nrrdDataPaths(path, h);
+  if (h.encoding == NrrdEncoding::Ascii || h.encoding == NrrdEncoding::Hex) {
+    whyNot = "ascii and hex data are read whole";
+  } else if (paths.size() != 1) {
+    whyNot = "data in several files is read whole";
+  } else if (frames > 1 && h.framesFirst) {
+    whyNot = "interleaved frames are read whole";
+  }
+  if (!whyNot.empty()) return std::nullopt;
+  try {
+    fileSizeOf(paths[0]);
+  } catch (const Error& e) {
+    throw Error(path + ": data file " + e.what());
+  }
+  DenseDataLayout layout;
+  layout.path = path;
+  layout.dataPath = paths[0];
+  const std::uint64_t start = skipLines(paths[0], h.attached ? h.headerBytes : 0, h.lineSkip);
+  if (h.encoding == NrrdEncoding::Raw) {
+    layout.offset = rawOffset({path, h, paths[0], 0, count * frames}, start) + frame * count * size;
+  } else {
+    layout.encoding = h.encoding == NrrdEncoding::Gzip ? DataEncoding::Gzip : DataEncoding::Bzip2;
+    layout.streamStart = start;
+    layout.offset = static_cast<std::uint64_t>(h.byteSkip) + frame * count * size;
+    layout.checkEnd = frame + 1 == frames;
+  }
+  layout.type = h.type;
+  layout.endian = h.endian;
+  layout.geometry.dims = h.dims;
+  layout.geometry.spacing = h.spacing;
+  layout.geometry.direction = h.direction;
+  layout.geometry.origin = h.origin;
+  layout.geometry.space = h.space;
+  layout.description = describeDenseFile(path, "NRRD", h.type, h.dims);
+  if (h.frames > 1)
+    layout.description += " frame " + std::to_string(frame) + " of " + std::to_string(h.frames);
+  return layout;
+}
+
 DenseGrid readNrrd(const std::string& path, const NrrdReadOptions& options) {
   const NrrdHeader h = readNrrdHeader(path);
   const std::uint64_t frame = chooseFrame(path, h, options.frame);

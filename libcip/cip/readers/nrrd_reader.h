@@ -17,10 +17,12 @@
 /// (`...-time`), more than one non-spatial axis, 64-bit integer and block types.
 #pragma once
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include "cip/readers/volume_input.h"
 #include "cip/volume/dense_grid.h"
 #include "cip/volume/sample_type.h"
 
@@ -80,5 +82,11 @@ struct NrrdReadOptions {
 /// that decompresses to a size other than declared (stopped as soon as it goes past), corrupt compressed
 /// data, or dims over `maxBytes` of doubles (checked before allocating).
 DenseGrid readNrrd(const std::string& path, const NrrdReadOptions& options = {});
+
+/// The checks of readNrrd (header, frame, dims, data file sizes) and where the chosen frame's samples lie,
+/// without reading them (slab_reader.h). Data that can only be read whole (ascii or hex encoding, several
+/// data files, interleaved frames) gives no layout and `whyNot` says why.
+std::optional<DenseDataLayout> nrrdDataLayout(const std::string& path, const NrrdReadOptions& options,
+                                              std::string& whyNot);
 
 }  // namespace cip

@@ -23,7 +23,7 @@ std::array<std::int64_t, 3> parseDims(const std::string& text) {
   return dims;
 }
 
-DenseGrid readRaw(const std::string& path, const RawFormat& format, std::size_t maxBytes) {
+DenseDataLayout rawDataLayout(const std::string& path, const RawFormat& format, std::size_t maxBytes) {
   for (int a = 0; a < 3; ++a) {
     if (!(format.spacing[a] > 0) || !std::isfinite(format.spacing[a])) {
       throw Error(path + ": spacing must be positive and finite");
@@ -44,13 +44,26 @@ DenseGrid readRaw(const std::string& path, const RawFormat& format, std::size_t 
                 (actual < expected ? std::to_string(expected - actual) + " bytes short)"
                                    : std::to_string(actual - expected) + " bytes too many)"));
   }
+  DenseDataLayout layout;
+  layout.path = layout.dataPath = path;
+  layout.offset = format.offset;
+  layout.type = format.type;
+  layout.endian = format.endian;
+  layout.geometry.dims = format.dims;
+  layout.geometry.spacing = format.spacing;
+  layout.geometry.origin = format.origin;
+  layout.description = describeDenseFile(path, "raw", format.type, format.dims);
+  return layout;
+}
+
+DenseGrid readRaw(const std::string& path, const RawFormat& format, std::size_t maxBytes) {
+  const DenseDataLayout layout = rawDataLayout(path, format, maxBytes);
   DenseGrid grid;
   grid.allocate(format.dims, maxBytes);
-  grid.geometry.spacing = format.spacing;
-  grid.geometry.origin = format.origin;
+  grid.geometry = layout.geometry;
   FileByteSource source(path, format.offset);
   readSamplesInto(source, format.type, format.endian, grid);
-  grid.description = describeDenseFile(path, "raw", format.type, format.dims);
+  grid.description = layout.description;
   return grid;
 }
 

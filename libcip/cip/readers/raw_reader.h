@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <string>
 
+#include "cip/readers/volume_input.h"
 #include "cip/volume/dense_grid.h"
 #include "cip/volume/sample_type.h"
 
@@ -26,6 +27,11 @@ struct RawFormat {
 
 /// Parses dims written as "103x94x161" (also "103,94,161" or "103 94 161"); throws cip::Error otherwise.
 std::array<std::int64_t, 3> parseDims(const std::string& text);
+
+/// The checks of readRaw (spacing, origin, dims, the file's exact size) and where its samples lie, without
+/// reading them (slab_reader.h).
+DenseDataLayout rawDataLayout(const std::string& path, const RawFormat& format,
+                              std::size_t maxBytes = DenseGrid::defaultMaxBytes());
 
 /// Reads `path` as described by `format`. Throws cip::Error (message starting with the path) for a missing
 /// file, a size that does not match, bad dims, non-positive spacing, or a volume over `maxBytes` of doubles

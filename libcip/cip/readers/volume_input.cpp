@@ -375,9 +375,25 @@ std::int64_t checkVolumeDims(const std::string& path, const std::array<std::int6
   return count;
 }
 
-void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGrid& grid) {
+std::unique_ptr<ByteSource> openSamplesAt(const DenseDataLayout& layout, std::uint64_t first) {
+  const std::uint64_t byte = layout.offset + first * sampleSize(layout.type);
+  if (layout.encoding == DataEncoding::Plain) return std::make_unique<FileByteSource>(layout.dataPath, byte);
+  std::unique_ptr<ByteSource> source;
+  if (layout.encoding == DataEncoding::Gzip) {
+    source = std::make_unique<GzipByteSource>(layout.dataPath, layout.streamStart);
+  } else {
+    source = std::make_unique<Bzip2ByteSource>(layout.dataPath, layout.streamStart);
+  }
+  if (source->skip(byte) != byte) {
+    throw Error(layout.dataPath + ": data ends before byte " + std::to_string(byte) + " (" +
+                std::to_string(source->position()) + " bytes decompressed)");
+  }
+  return source;
+}
+
+void readSamplesInto(ByteSource& source, SampleType type, Endian endian, double* out, std::size_t total,
+                     std::uint64_t before, std::uint64_t allBytes) {
   const std::size_t size = sampleSize(type);
-  const std::size_t total = grid.values.size();
   const std::size_t perSlab = std::max<std::size_t>(1, kSlabBytes / size);
   std::vector<unsigned char> slab(std::min(total, perSlab) * size);
   std::size_t done = 0;
@@ -385,14 +401,19 @@ void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGr
     std::size_t count = std::min(total - done, perSlab);
     std::size_t got = source.read(slab.data(), count * size);
     if (got < count * size) {
-      std::uint64_t have = static_cast<std::uint64_t>(done) * size + got;
-      std::uint64_t need = static_cast<std::uint64_t>(total) * size;
+      const std::uint64_t have = before + static_cast<std::uint64_t>(done) * size + got;
       throw Error(source.path() + ": data ends after " + std::to_string(have) + " of " +
-                  std::to_string(need) + " bytes (" + std::to_string(need - have) + " bytes short)");
+                  std::to_string(allBytes) + " bytes (" + std::to_string(allBytes - have) + " bytes short)");
     }
-    decodeSamples(slab.data(), count, type, endian, grid.values.data() + done);
+    decodeSamples(slab.data(), count, type, endian, out + done);
     done += count;
   }
+}
+
+void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGrid& grid) {
+  const std::size_t total = grid.values.size();
+  readSamplesInto(source, type, endian, grid.values.data(), total, 0,
+                  static_cast<std::uint64_t>(total) * sampleSize(type));
 }
 
 }  // namespace cip

@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <functional>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -138,8 +139,38 @@ FrameSpan checkFrameSpan(const std::string& path, const std::array<std::int64_t,
 /// header, say) is thrown again with "<path>: " in front, so that every message starts with the path given.
 DenseGrid readPrefixingErrors(const std::string& path, const std::function<DenseGrid()>& read);
 
+/// How the stored samples of a dense volume file are encoded: as they are, or gzip/zlib- or bzip2-compressed.
+enum class DataEncoding : std::uint8_t { Plain, Gzip, Bzip2 };
+
+/// Where the samples of one frame of a dense volume file lie, found from its header alone and checked as the
+/// whole-volume reader checks them (sizes of plain data, frame in range), so that any run of samples can be
+/// read without the others (slab_reader.h). The samples are x fastest, then y, then z.
+struct DenseDataLayout {
+  std::string path;      ///< the file named by the caller (header), which error messages start with
+  std::string dataPath;  ///< the file holding the samples
+  DataEncoding encoding = DataEncoding::Plain;
+  std::uint64_t offset = 0;  ///< byte of the frame's first sample: in the file, or in the decompressed stream
+  std::uint64_t streamStart = 0;  ///< compressed: byte of the file where the compressed stream begins
+  bool checkEnd = false;  ///< compressed: reading the last sample checks that no data follows (expectEnd)
+  SampleType type = SampleType::UInt8;
+  Endian endian = Endian::Little;
+  double slope = 0;         ///< value = slope * stored + inter when slope is nonzero (NIfTI scl_slope)
+  double inter = 0;         ///< NIfTI scl_inter
+  GridGeometry geometry;    ///< dims and placement of the whole volume, as the whole-volume reader gives them
+  std::string description;  ///< as the whole-volume reader's grid description
+};
+
+/// A byte source positioned at sample `first` of the layout's frame (plain data: by seeking; compressed: by
+/// decompressing and skipping). Throws "<dataPath>: data ends before byte N ..." when the data is shorter.
+std::unique_ptr<ByteSource> openSamplesAt(const DenseDataLayout& layout, std::uint64_t first);
+
 /// Fills the already allocated `grid.values` with samples read from `source`, x fastest, in slabs of a few
 /// MiB. Throws "<path>: data ends after X of N bytes" when the source runs out early.
 void readSamplesInto(ByteSource& source, SampleType type, Endian endian, DenseGrid& grid);
+/// Decodes the next `count` samples of `source` into `out`, the run that starts `before` bytes into data of
+/// `allBytes` bytes (for the message): throws "<path>: data ends after X of N bytes" when the source runs
+/// out.
+void readSamplesInto(ByteSource& source, SampleType type, Endian endian, double* out, std::size_t count,
+                     std::uint64_t before, std::uint64_t allBytes);
 
 }  // namespace cip

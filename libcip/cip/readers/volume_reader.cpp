@@ -131,11 +131,14 @@ SparseVolume readVolume(const std::string& path, const VolumeReadOptions& option
   return fromDense(readRaw(path, *options.raw, options.maxBytes));
 }
 
-std::string describeVolume(const SparseVolume& volume) {
+namespace {
+
+/// describeVolume's text; `bricks` (the brick count) is given for sparse volumes only.
+std::string describeGrid(const GridGeometry& g, const std::string& description, std::size_t bricks,
+                         bool sparse) {
   std::ostringstream s;
-  const auto& g = volume.geometry;
-  s << volume.description;
-  if (!volume.dense()) s << ", grid " << g.dims[0] << "x" << g.dims[1] << "x" << g.dims[2];
+  s << description;
+  if (sparse) s << ", grid " << g.dims[0] << "x" << g.dims[1] << "x" << g.dims[2];
   s << ", spacing " << g.spacing[0] << " " << g.spacing[1] << " " << g.spacing[2];
   if (!g.axisAligned()) {
     s << ", axes";
@@ -149,9 +152,18 @@ std::string describeVolume(const SparseVolume& volume) {
     }
   }
   if (g.space != WorldSpace::Unspecified) s << ", " << toString(g.space);
-  if (!volume.dense())
-    s << ", " << volume.bricks.size() << (volume.bricks.size() == 1 ? " brick" : " bricks");
+  if (sparse) s << ", " << bricks << (bricks == 1 ? " brick" : " bricks");
   return s.str();
+}
+
+}  // namespace
+
+std::string describeVolume(const SparseVolume& volume) {
+  return describeGrid(volume.geometry, volume.description, volume.bricks.size(), !volume.dense());
+}
+
+std::string describeDenseVolume(const GridGeometry& geometry, const std::string& description) {
+  return describeGrid(geometry, description, 1, false);
 }
 
 }  // namespace cip

@@ -48,4 +48,8 @@ std::uint64_t volumeFileBytes(const std::string& path);
 /// bricks".
 std::string describeVolume(const SparseVolume& volume);
 
+/// describeVolume of a dense volume given by its geometry and grid description (a volume read in slabs,
+/// slab_reader.h, which is never whole in memory).
+std::string describeDenseVolume(const GridGeometry& geometry, const std::string& description);
+
 }  // namespace cip

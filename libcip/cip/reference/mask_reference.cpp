@@ -183,14 +183,17 @@ void classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
 
 /// The field of class `target` over the grid, block by block in parallel, as samples offset + f.
 template <class ClassOf>
-DenseGrid classField(const DenseGrid& grid, const ClassOf& classOf, std::int64_t target, double offset) {
+DenseGrid classField(const DenseGrid& grid, const ClassOf& classOf, std::int64_t target, double offset,
+                     std::int64_t firstSliceZ = 0) {
   DenseGrid out;
   out.geometry = grid.geometry;
   out.description = grid.description;
   out.allocate(grid.geometry.dims);
   const Dims& dims = grid.geometry.dims;
   Dims blocks;
-  for (int a = 0; a < 3; ++a) blocks[a] = (dims[a] + kMaskBlock - 1) / kMaskBlock;
+  // Along z the blocks start where the slices of the larger grid do (firstSliceZ): the first may be shorter.
+  const std::int64_t phase = firstSliceZ % kMaskBlock;
+  for (int a = 0; a < 3; ++a) blocks[a] = (dims[a] + (a == 2 ? phase : 0) + kMaskBlock - 1) / kMaskBlock;
   const std::int64_t count = blocks[0] * blocks[1] * blocks[2];
   tbb::parallel_for(
       tbb::blocked_range<std::int64_t>(0, count, 1), [&](const tbb::blocked_range<std::int64_t>& range) {
@@ -200,8 +203,9 @@ DenseGrid classField(const DenseGrid& grid, const ClassOf& classOf, std::int64_t
           const Dims at{n % blocks[0], (n / blocks[0]) % blocks[1], n / (blocks[0] * blocks[1])};
           Dims lo, b;
           for (int a = 0; a < 3; ++a) {
-            lo[a] = at[a] * kMaskBlock;
-            b[a] = std::min<std::int64_t>(kMaskBlock, dims[a] - lo[a]);
+            const std::int64_t shift = a == 2 ? phase : 0;
+            lo[a] = std::max<std::int64_t>(0, at[a] * kMaskBlock - shift);
+            b[a] = std::min<std::int64_t>((at[a] + 1) * kMaskBlock - shift, dims[a]) - lo[a];
           }
           classBlock(grid, classOf, target, lo, b, scratch, field);
           for (std::int64_t k = 0; k < b[2]; ++k)
@@ -244,6 +248,10 @@ struct TwoValuedScan {
 };
 
 }  // namespace
+
+int maskKernelRadius() {
+  return kernel().radius();
+}
 
 int maskReach() {
   return kernel().radius() + referenceReach(Reconstruction::Central8);
@@ -288,8 +296,8 @@ DenseGrid smoothMask(const DenseGrid& grid, double isovalue) {
 }
 
 DenseGrid smoothClass(const DenseGrid& grid, const std::function<std::int64_t(double)>& classOf,
-                      std::int64_t target) {
-  return classField(grid, classOf, target, 0.0);
+                      std::int64_t target, std::int64_t firstSliceZ) {
+  return classField(grid, classOf, target, 0.0, firstSliceZ);
 }
 
 }  // namespace cip

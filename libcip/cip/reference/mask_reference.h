@@ -37,6 +37,8 @@ constexpr int kMaskBlock = 16;
 /// Points around a cell that the field of the cell's corners depends on (the kernel's radius) plus the
 /// reach of the Central8 derivatives taken from it: the apron bricks of sparse volumes need.
 int maskReach();
+/// The radius of the smoothing kernel in grid points.
+int maskKernelRadius();
 
 /// Whether the samples next to the isosurface take two values only: `below` on the non-positive side
 /// (value <= isovalue) and `above` on the positive side, at every grid point with a neighbour along an axis
@@ -55,7 +57,11 @@ DenseGrid smoothMask(const DenseGrid& grid, double isovalue);
 /// The field f_T of class `target` of a partition of the grid points into classes (`classOf` maps a sample
 /// to its class; a label map's labels, rounded), as samples f (isovalue 0): positive exactly at the points
 /// of class `target`. Beyond the grid each point takes the class of the nearest grid point.
+/// With three or more classes the field of a block depends on the classes met within the kernel's radius of
+/// it, so it depends on where blocks start: `firstSliceZ` is the z index of the grid's first slice in a
+/// larger grid that it is a slab of, and blocks start along z where they start in that grid (a slab holding
+/// the blocks of its points and their kernel's radius gives the larger grid's field there).
 DenseGrid smoothClass(const DenseGrid& grid, const std::function<std::int64_t(double)>& classOf,
-                      std::int64_t target);
+                      std::int64_t target, std::int64_t firstSliceZ = 0);
 
 }  // namespace cip

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <utility>
 
 #include "cip/core/error.h"
 #include "cip/core/huge_pages.h"
@@ -20,7 +21,7 @@ constexpr std::array<std::int64_t, 3> kTile{32, 16, 16};
 
 PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells,
                                      Reconstruction kind)
-    : grid_(&grid) {
+    : dims_(grid.geometry.dims) {
   const auto& dims = grid.geometry.dims;
   const std::int64_t dx = dims[0], dxy = dims[0] * dims[1];
   present_.assign(static_cast<std::size_t>((grid.geometry.pointCount() + 63) / 64), 0);
@@ -87,13 +88,37 @@ PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<st
   });
 }
 
+void PointHermiteTable::compact() {
+  if (compact_) return;
+  std::vector<std::uint64_t> words, present;
+  std::vector<std::uint32_t> before;
+  for (std::size_t w = 0; w < present_.size(); ++w) {
+    if (present_[w] == 0) continue;
+    words.push_back(w);
+    present.push_back(present_[w]);
+    before.push_back(before_[w]);
+  }
+  words_ = std::move(words);
+  present_ = std::move(present);
+  before_ = std::move(before);
+  compact_ = true;
+}
+
+std::ptrdiff_t PointHermiteTable::wordOf(std::int64_t index) const {
+  if (index < 0) return -1;
+  const auto w = static_cast<std::uint64_t>(index >> 6);
+  if (!compact_) return w < present_.size() ? static_cast<std::ptrdiff_t>(w) : -1;
+  const auto it = std::lower_bound(words_.begin(), words_.end(), w);
+  return it != words_.end() && *it == w ? it - words_.begin() : -1;
+}
+
 bool PointHermiteTable::holds(std::int64_t index) const {
-  const auto w = static_cast<std::size_t>(index >> 6);
-  return index >= 0 && w < present_.size() && (present_[w] >> (index & 63)) & 1;
+  const std::ptrdiff_t w = wordOf(index);
+  return w >= 0 && (present_[static_cast<std::size_t>(w)] >> (index & 63)) & 1;
 }
 
 std::size_t PointHermiteTable::rank(std::int64_t index) const {
-  const std::size_t w = static_cast<std::size_t>(index >> 6);
+  const auto w = static_cast<std::size_t>(wordOf(index));
   const std::uint64_t below = (std::uint64_t(1) << (index & 63)) - 1;
   return before_[w] + static_cast<std::size_t>(__builtin_popcountll(present_[w] & below));
 }
@@ -110,8 +135,8 @@ void PointHermiteTable::setReference(const std::array<std::int64_t, 3>& cell, do
   ref.origin = Vec3::Zero();
   ref.isovalue = isovalue;
   ref.metric = Vec3::Ones();
-  const std::int64_t base = grid_->index(cell[0], cell[1], cell[2]);
-  const std::int64_t dx = grid_->geometry.dims[0], dxy = dx * grid_->geometry.dims[1];
+  const std::int64_t dx = dims_[0], dxy = dx * dims_[1];
+  const std::int64_t base = cell[0] + dx * cell[1] + dxy * cell[2];
   const std::int64_t rows[4] = {base, base + dx, base + dxy, base + dx + dxy};
   bool held = true;
   for (std::int64_t row : rows) held = held && holds(row) && holds(row + 1);

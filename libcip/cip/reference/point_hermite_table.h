@@ -2,6 +2,7 @@
 /// @brief The reference's Hermite data at every grid point a model needs, computed once and shared by the
 /// cells and edges around each point (point_hermite.h computes them).
 #pragma once
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -19,8 +20,13 @@ class PointHermiteTable {
  public:
   PointHermiteTable() = default;
   /// The data at the corners of the given cells (each its lowest point's grid.index; the cell inside the
-  /// grid). The grid must outlive the table.
+  /// grid). The table keeps no reference to the grid.
   PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells, Reconstruction kind);
+
+  /// Drops the words of the bit per grid point that hold no point, so that what the table keeps is
+  /// proportional to its points, not to the grid (a streamed build keeps one table per slab of the volume);
+  /// lookups then search the words left (a binary search instead of an index).
+  void compact();
 
   /// The data at grid point `index` (grid.index), which must be a corner of one of the table's cells (throws
   /// Error otherwise).
@@ -33,10 +39,14 @@ class PointHermiteTable {
  private:
   bool holds(std::int64_t index) const;
   std::size_t rank(std::int64_t index) const;  ///< of a point held
-  const DenseGrid* grid_ = nullptr;
-  std::vector<std::uint64_t> present_;  ///< bit per grid point (grid.index order)
-  std::vector<std::uint32_t> before_;   ///< points present in the words before each word of present_
-  std::vector<PointHermite> data_;      ///< in grid.index order of the points present
+  /// The word of present_ holding grid point `index`'s bit, or -1 when no word holds it.
+  std::ptrdiff_t wordOf(std::int64_t index) const;
+  std::array<std::int64_t, 3> dims_{0, 0, 0};  ///< of the grid
+  std::vector<std::uint64_t> present_;  ///< bit per grid point (grid.index order); compact: nonzero words
+  std::vector<std::uint64_t> words_;    ///< compact: which word of the bit per grid point each one is
+  bool compact_ = false;
+  std::vector<std::uint32_t> before_;  ///< points present in the words before each word of present_
+  std::vector<PointHermite> data_;     ///< in grid.index order of the points present
 };
 
 }  // namespace cip

@@ -1,0 +1,70 @@
+#include "streamed_input.h"
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+
+#include "cip/core/error.h"
+#include "cip/volume/sparse_volume.h"
+
+namespace cip {
+
+StreamMode parseStreamMode(const std::string& text) {
+  if (text == "auto") return StreamMode::Auto;
+  if (text == "on") return StreamMode::On;
+  if (text == "off") return StreamMode::Off;
+  throw Error("unknown --stream mode '" + text + "' (expected auto, on or off)");
+}
+
+std::optional<DenseDataLayout> streamedLayout(const std::string& path, const VolumeReadOptions& read,
+                                              const BuildOptions& build, StreamMode mode) {
+  if (mode == StreamMode::Off) return std::nullopt;
+  std::string why = whyNotStreamed(build);
+  DenseVolumeProbe probe;
+  if (why.empty()) {
+    probe = probeDenseVolume(path, read);
+    why = probe.whyNot;
+  }
+  if (!why.empty()) {
+    if (mode == StreamMode::On) throw Error(path + ": --stream on: cannot build slab by slab: " + why);
+    return std::nullopt;
+  }
+  const auto& d = probe.layout->geometry.dims;
+  const double doubles =
+      static_cast<double>(d[0]) * static_cast<double>(d[1]) * static_cast<double>(d[2]) * 8;
+  if (mode == StreamMode::Auto && doubles < static_cast<double>(kStreamAutoBytes)) return std::nullopt;
+  return probe.layout;
+}
+
+SliceSource StreamedVolume::source() {
+  return [this](std::int64_t z0, std::int64_t z1, double* out) {
+    reader_.readInto(z0, z1, out);
+    const auto n = static_cast<std::size_t>((z1 - z0) * reader_.sliceSamples());
+    for (std::size_t i = 0; i < n; ++i) {
+      const double v = out[i];
+      if (!std::isfinite(v)) continue;
+      if (!any_) lo_ = hi_ = v;
+      any_ = true;
+      lo_ = std::min(lo_, v);
+      hi_ = std::max(hi_, v);
+    }
+  };
+}
+
+std::vector<std::int64_t> StreamedVolume::labels() {
+  const auto& d = layout().geometry.dims;
+  const std::int64_t slices =
+      std::max<std::int64_t>(1, (std::int64_t(64) << 20) / std::max<std::int64_t>(1, 8 * d[0] * d[1]));
+  std::set<std::int64_t> all;
+  const SliceSource read = source();
+  for (std::int64_t z0 = 0; z0 < d[2]; z0 += slices) {
+    const std::int64_t z1 = std::min(d[2], z0 + slices);
+    DenseGrid slab;
+    slab.allocate({d[0], d[1], z1 - z0}, static_cast<std::size_t>(-1));
+    read(z0, z1, slab.values.data());
+    for (const std::int64_t l : labelsOf(fromDense(std::move(slab)))) all.insert(l);
+  }
+  return {all.begin(), all.end()};
+}
+
+}  // namespace cip
