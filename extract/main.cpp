@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <limits>
@@ -25,6 +26,7 @@
 #include "cip/volume/analytic_field.h"
 #include "extract_stats.h"
 #include "huge_page_restart.h"
+#include "mpi_collective.h"
 
 namespace {
 
@@ -46,6 +48,9 @@ struct Options {
   int frame = -1;  // 4-D NIfTI / MetaImage: the frame to read
   std::vector<double> spacing, origin;
   std::uint64_t offset = 0;
+  cip::MpiWorld* mpi = nullptr;  ///< set under mpirun (docs/mpi.md)
+  /// Rank 0 (or a plain run): the rank that shows progress, writes the outputs and prints the summary.
+  bool leader() const { return !mpi || mpi->rank() == 0; }
 };
 
 cip::Vec3 vec3(const std::vector<double>& v, const cip::Vec3& fallback, const char* what) {
@@ -138,7 +143,7 @@ double isovalue(const Options& opt, const Input& in) {
     throw cip::Error(opt.input + ": no default isovalue for this input; give one with --iso");
   }
   auto [lo, hi] = in.volume.range();
-  if (!(iso > lo && iso < hi)) {
+  if (!(iso > lo && iso < hi) && opt.leader()) {
     std::fprintf(stderr,
                  "warning: isovalue %g is outside the data range [%g, %g]; the surface will be empty\n", iso,
                  lo, hi);
@@ -232,10 +237,19 @@ void checkHoles(const Options& opt, const cip::Model& stored, cip::ExtractStats&
                  stats.holeCells->size(), stored.cells.size());
 }
 
+/// For the tests of a failing rank only (docs/mpi.md): CIP_TEST_FAIL_RANK=r makes rank r (0 in a plain run)
+/// fail after reading its input, as a bad slab or a rank out of memory would.
+void injectTestFault(const Options& opt) {
+  const char* rank = std::getenv("CIP_TEST_FAIL_RANK");
+  if (rank && std::atoi(rank) == (opt.mpi ? opt.mpi->rank() : 0))
+    throw cip::Error("failure injected for a test (CIP_TEST_FAIL_RANK)");
+}
+
 /// Builds the model, naming the flag that skips NaN cells when the input has some.
 cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options, cip::ExtractStats& stats) {
-  cip::ProgressBar bar("building", !opt.quiet);
-  options.progress = [&](double f) { bar.update(f); };
+  cip::ProgressBar bar("building", !opt.quiet && opt.leader());  // rank 0 reports the whole build
+  if (opt.leader()) options.progress = [&](double f) { bar.update(f); };
+  options.collective = opt.mpi;
   cip::FittingStats fitting;
   if (options.method == cip::PatchMethod::Fitted) options.fittingStats = &fitting;
   if (options.normals == cip::NormalMode::Exact) {
@@ -277,6 +291,7 @@ int run(const Options& opt) {
   cip::BuildOptions readOptions = options;  // the apron the bricks need
   if (opt.labels) readOptions.label = 0;
   Input in = readInput(opt, readOptions, stats);
+  injectTestFault(opt);
   // A --space the volume cannot be converted to fails here, before the build.
   stats.world = cip::WorldTransform::of(in.volume.geometry, outputSpace(opt));
   stats.dims = in.volume.geometry.dims;
@@ -320,6 +335,15 @@ int runOne(const Options& opt, const Input& in, cip::BuildOptions options, cip::
   stats.seconds["build_isovertices"] = timings.isovertices;
   stats.seconds["build_assemble"] = timings.assemble;
   stats.seconds["build_fit"] = timings.fit;
+  stats.ranks = opt.mpi ? opt.mpi->size() : 1;
+  for (int r = 0; r < stats.ranks; ++r) {
+    const auto [first, end] = cip::rankShare(model.cells.size(), r, stats.ranks);
+    stats.cellsPerRank.push_back(end - first);
+  }
+  // Every rank holds the same model now; rank 0 writes it once all ranks got here (one that failed has
+  // ended the run instead: no output then).
+  if (opt.mpi) opt.mpi->barrier();
+  if (!opt.leader()) return 0;
 
   // Everything after this point describes the model as the file stores it (format 2 quantises), never the
   // model as built.
@@ -468,12 +492,25 @@ int main(int argc, char** argv) {
   const double analyticPoints =
       std::filesystem::exists(opt.input) ? 0.0 : std::pow(static_cast<double>(opt.resolution) + 1, 3);
   cip::restartWithHugePages(argv, opt.input, analyticPoints);
+  // Under mpirun, a rank's failure ends every rank (MPI_Abort) after it said why: no rank waits forever for
+  // it, and no output is written (rank 0 writes only after every rank finished the build).
+  std::unique_ptr<cip::MpiWorld> mpi;
+  std::string where;
   try {
+    if (cip::launchedByMpirun()) {
+      mpi = cip::MpiWorld::start(&argc, &argv);
+      opt.mpi = mpi.get();
+      where = " (rank " + std::to_string(mpi->rank()) + " of " + std::to_string(mpi->size()) + ")";
+    }
     return run(opt);
   } catch (const std::bad_alloc&) {
-    std::fprintf(stderr, "extract: error: out of memory\n");
+    std::fprintf(stderr, "extract: error%s: out of memory\n", where.c_str());
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "extract: error: %s\n", e.what());
+    std::fprintf(stderr, "extract: error%s: %s\n", where.c_str(), e.what());
+  }
+  if (mpi && mpi->size() > 1) {
+    std::fflush(stderr);
+    mpi->abort(1);
   }
   return 1;
 }

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "cip/core/bisection.h"
@@ -470,6 +471,35 @@ CellLoops assembleCell(const Input& in, const CellRef& cell, EdgeCursors& edges,
   return loops;
 }
 
+/// Each rank's share of the assembled cells (rankShare), their corners and, when kept, their loops, sent to
+/// every rank: each ends with the whole table one process assembles.
+void exchangeAssembled(const Collective& ranks, Model& model, std::vector<CellLoops>& loops) {
+  const std::size_t n = model.cells.size();
+  auto cellRange = [&](int r) { return rankShare(n, r, ranks.size()); };
+  exchangeRanges(
+      ranks, sizeof(ModelCell), cellRange,
+      [&](std::size_t c, std::vector<std::uint8_t>& out) { appendBytes(out, &model.cells[c], 1); },
+      [&](std::size_t c, const std::uint8_t* p) { std::memcpy(&model.cells[c], p, sizeof(ModelCell)); });
+  auto cornerRange = [&](int r) {
+    const auto [c0, c1] = cellRange(r);
+    auto at = [&](std::size_t c) {
+      return c < n ? std::size_t{model.cells[c].firstCorner} : model.corners.size();
+    };
+    return std::make_pair(at(c0), at(c1));
+  };
+  exchangeRanges(
+      ranks, sizeof(std::uint32_t), cornerRange,
+      [&](std::size_t k, std::vector<std::uint8_t>& out) { appendBytes(out, &model.corners[k], 1); },
+      [&](std::size_t k, const std::uint8_t* p) {
+        std::memcpy(&model.corners[k], p, sizeof(std::uint32_t));
+      });
+  if (loops.empty()) return;
+  exchangeRanges(
+      ranks, sizeof(CellLoops), cellRange,
+      [&](std::size_t c, std::vector<std::uint8_t>& out) { appendBytes(out, &loops[c], 1); },
+      [&](std::size_t c, const std::uint8_t* p) { std::memcpy(&loops[c], p, sizeof(CellLoops)); });
+}
+
 }  // namespace
 
 CellScan scanCells(const Input& in) {
@@ -555,17 +585,22 @@ std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>
   const bool keepLoops = fitsModelWide(in.options);   // the fitting works on them again
   const double end = keepLoops ? kFitProgress : 1.0;  // the fitting reports from there
   std::vector<CellLoops> loops(keepLoops ? cells.size() : 0);
+  // Split between ranks: each assembles its share of the cells, then the ranks exchange them.
+  const Collective* ranks = sharedBuild(in.options);
+  const auto [first, last] = ranks ? rankShare(cells.size(), ranks->rank(), ranks->size())
+                                   : std::make_pair(std::size_t(0), cells.size());
   std::atomic<std::size_t> cellsDone{0};
   tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, cells.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+      tbb::blocked_range<std::size_t>(first, last, 256), [&](const tbb::blocked_range<std::size_t>& r) {
         EdgeCursors cursors(edges);
         for (std::size_t c = r.begin(); c != r.end(); ++c) {
           CellLoops cellLoops = assembleCell(in, cells[c], cursors, model, model.cells[c]);
           if (keepLoops) loops[c] = cellLoops;
         }
         const std::size_t done = cellsDone += r.size();
-        in.progress.set(0.5 + (end - 0.5) * static_cast<double>(done) / static_cast<double>(cells.size()));
+        in.progress.set(0.5 + (end - 0.5) * static_cast<double>(done) / static_cast<double>(last - first));
       });
+  if (ranks) exchangeAssembled(*ranks, model, loops);
   return loops;
 }
 
@@ -593,7 +628,8 @@ void fitCoefficients(const Input& in, const std::vector<CellRef>& cells, const S
         }
         ref.metric = metric;
       },
-      [&](double fraction) { in.progress.set(kFitProgress + (1 - kFitProgress) * fraction); });
+      [&](double fraction) { in.progress.set(kFitProgress + (1 - kFitProgress) * fraction); },
+      options.collective);
   if (reference.sampled) {
     model.reconstruction = reference.kind;
     stats.reconstruction = reference.kind;

@@ -85,6 +85,11 @@ inline bool fitsModelWide(const BuildOptions& options) {
   return options.fitCoefficients && options.method == PatchMethod::Fitted;
 }
 
+/// The ranks a build is split between (BuildOptions::collective with more than one rank), or null.
+inline const Collective* sharedBuild(const BuildOptions& options) {
+  return options.collective && options.collective->size() > 1 ? options.collective : nullptr;
+}
+
 /// Scan's result: the crossed cells and, per brick row, their crossed edges without repeats (an edge shared
 /// by two bricks is listed by both), both brick by brick and row by row; for one brick of finite samples,
 /// the edges sorted and unique (edgesUnique).
@@ -120,7 +125,8 @@ std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference&
 
 /// Pass 4, progress 0.5 to 1 (to 0.6 when fitsModelWide): model.cells and model.corners from `cells` (sorted
 /// by key) and the isovertices placed on `edges`: each cell's loops, corners and, with PatchMethod::Paper,
-/// its coefficients. Returns the cells' loops when fitsModelWide (for fitCoefficients), else nothing. Throws
+/// its coefficients. With sharedBuild, each rank assembles its share of the cells (rankShare) and the ranks
+/// exchange them. Returns the cells' loops when fitsModelWide (for fitCoefficients), else nothing. Throws
 /// cip::Error when the corners exceed 2^32 - 1.
 std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>& cells,
                                      const std::vector<EdgeRef>& edges, Model& model);
