@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 
 #include <condition_variable>
+#include <functional>
+#include <limits>
 #include <mutex>
 #include <thread>
 
@@ -67,8 +69,9 @@ class ThreadRanks {
   std::uint64_t generation_ = 0;
 };
 
-/// The file bytes of the model of `grid` built by `ranks` threads as ranks, one per rank.
-std::vector<std::vector<std::uint8_t>> rankModels(const DenseGrid& grid, BuildOptions options, int ranks,
+/// The file bytes of `build(options)` run by `ranks` threads as ranks, one per rank.
+std::vector<std::vector<std::uint8_t>> rankModels(const std::function<Model(const BuildOptions&)>& build,
+                                                  BuildOptions options, int ranks,
                                                   std::vector<FittingStats>* stats = nullptr) {
   ThreadRanks all(ranks);
   std::vector<std::vector<std::uint8_t>> bytes(static_cast<std::size_t>(ranks));
@@ -81,11 +84,17 @@ std::vector<std::vector<std::uint8_t>> rankModels(const DenseGrid& grid, BuildOp
       o.collective = &rank;
       o.threads = 1;
       o.fittingStats = &fitting[static_cast<std::size_t>(r)];
-      bytes[static_cast<std::size_t>(r)] = serializeModel(buildModel(grid, o), fullPrecision());
+      bytes[static_cast<std::size_t>(r)] = serializeModel(build(o), fullPrecision());
     });
   for (auto& t : threads) t.join();
   if (stats) *stats = fitting;
   return bytes;
+}
+
+/// The same of a dense grid.
+std::vector<std::vector<std::uint8_t>> rankModels(const DenseGrid& grid, BuildOptions options, int ranks,
+                                                  std::vector<FittingStats>* stats = nullptr) {
+  return rankModels([&](const BuildOptions& o) { return buildModel(grid, o); }, options, ranks, stats);
 }
 
 struct Case {
@@ -143,6 +152,48 @@ TEST(CollectiveBuild, MoreRanksThanCells) {
   options.isovalue = field->defaultIsovalue();
   const std::vector<std::uint8_t> one = serializeModel(buildModel(grid, options), fullPrecision());
   for (const auto& bytes : rankModels(grid, options, 40)) EXPECT_TRUE(bytes == one);
+}
+
+// A non-finite sample in one slab only (cells around it skipped): the slabs' ranks together list the cells
+// and edges one process lists for a grid that is not finite everywhere.
+TEST(CollectiveBuild, NonFiniteSampleInOneSlab) {
+  const auto field = makeAnalyticField("sphere");
+  DenseGrid grid = sampleField(*field, 20, "sphere");
+  BuildOptions options;
+  options.isovalue = field->defaultIsovalue();
+  // On the positive side, where a NaN (never > the isovalue) differs in sign from its neighbours: edges that
+  // a scan of the point rows alone would list.
+  const std::array<std::int64_t, 3> at = grid.at(10, 10, 17) > options.isovalue
+                                             ? std::array<std::int64_t, 3>{10, 10, 17}
+                                             : std::array<std::int64_t, 3>{1, 1, 17};
+  ASSERT_GT(grid.at(at[0], at[1], at[2]), options.isovalue);
+  grid.at(at[0], at[1], at[2]) = std::numeric_limits<double>::quiet_NaN();
+  options.skipNonFinite = true;
+  const std::vector<std::uint8_t> one = serializeModel(buildModel(grid, options), fullPrecision());
+  for (int ranks : {2, 3})
+    for (const auto& bytes : rankModels(grid, options, ranks)) EXPECT_TRUE(bytes == one) << ranks << " ranks";
+}
+
+// Several bricks (as a sparse volume's): the ranks scan their share of the bricks.
+TEST(CollectiveBuild, Bricks) {
+  const auto field = makeAnalyticField("gyroid");
+  const DenseGrid grid = sampleField(*field, 24, "gyroid");
+  std::vector<GridBrick> bricks;
+  const std::array<std::int64_t, 5> layers{0, 5, 11, 18, 24};  // each brick's cell layers of the whole grid
+  for (std::size_t i = 0; i + 1 < layers.size(); ++i) {
+    GridBrick b;
+    b.grid = &grid;
+    b.cellBegin = {0, 0, layers[i]};
+    b.cellEnd = {24, 24, layers[i + 1]};
+    bricks.push_back(b);
+  }
+  BuildOptions options;
+  options.isovalue = field->defaultIsovalue();
+  auto build = [&](const BuildOptions& o) { return buildModel(grid.geometry, bricks, o, "bricks"); };
+  const std::vector<std::uint8_t> one = serializeModel(build(options), fullPrecision());
+  for (int ranks : {2, 3, 6})
+    for (const auto& bytes : rankModels(build, options, ranks))
+      EXPECT_TRUE(bytes == one) << ranks << " ranks";
 }
 
 TEST(RankShare, CoversTheItemsInOrderWithinOne) {

@@ -14,6 +14,14 @@ std::pair<std::size_t, std::size_t> rankShare(std::size_t count, int rank, int s
   return {first, first + base + (r < extra ? 1 : 0)};
 }
 
+bool allRanks(const Collective& collective, bool mine) {
+  const std::vector<std::vector<std::uint8_t>> all =
+      collective.allgather(std::vector<std::uint8_t>{static_cast<std::uint8_t>(mine)});
+  for (const auto& r : all)
+    if (r.size() != 1 || !r[0]) return false;
+  return true;
+}
+
 void exchangeRanges(const Collective& collective, std::size_t recordBytes,
                     const std::function<std::pair<std::size_t, std::size_t>(int)>& range,
                     const std::function<void(std::size_t, std::vector<std::uint8_t>&)>& pack,

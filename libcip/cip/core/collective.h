@@ -27,6 +27,9 @@ class Collective {
 /// cut into `size` runs whose lengths differ by at most one (the first count % size runs one longer).
 std::pair<std::size_t, std::size_t> rankShare(std::size_t count, int rank, int size);
 
+/// Whether `mine` holds on every rank (every rank calls it).
+bool allRanks(const Collective& collective, bool mine);
+
 /// Appends the bytes of `n` trivially copyable values to `out` (what allgather carries).
 template <class T>
 void appendBytes(std::vector<std::uint8_t>& out, const T* values, std::size_t n) {

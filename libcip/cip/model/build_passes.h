@@ -120,6 +120,7 @@ SampledReference prepareReference(const Input& in, const std::vector<CellRef>& c
 std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges, bool alreadyUnique = false);
 
 /// Pass 3: the isovertex of every edge of `edges` (uniqueEdges), in their order: the model's vertex table.
+/// With sharedBuild, each rank places its share of the edges (rankShare) and the ranks exchange them.
 std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference& reference,
                                         const std::vector<EdgeRef>& edges);
 
