@@ -628,6 +628,12 @@ SampledReference prepareReference(const Input& in, const std::vector<CellRef>& c
   } else {
     for (const CellRef& c : cells) brickCells[c.brick].push_back(localIndex(c));
   }
+  // One brick split between ranks: its table's tiles by z-layers (called here, from the calling thread).
+  if (const Collective* ranks = sharedBuild(in.options); ranks && in.bricks.size() == 1) {
+    if (!brickCells[0].empty())
+      reference.tables[0] = PointHermiteTable(*in.bricks[0].grid, brickCells[0], reference.kind, ranks);
+    return reference;
+  }
   tbb::parallel_for(std::size_t(0), in.bricks.size(), [&](std::size_t bi) {
     if (!brickCells[bi].empty())
       reference.tables[bi] = PointHermiteTable(*in.bricks[bi].grid, brickCells[bi], reference.kind);

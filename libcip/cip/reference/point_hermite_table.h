@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "cip/core/collective.h"
 #include "cip/reference/point_hermite.h"
 #include "cip/reference/tricubic_reference.h"
 #include "cip/volume/dense_grid.h"
@@ -19,8 +20,10 @@ class PointHermiteTable {
  public:
   PointHermiteTable() = default;
   /// The data at the corners of the given cells (each its lowest point's grid.index; the cell inside the
-  /// grid). The grid must outlive the table.
-  PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells, Reconstruction kind);
+  /// grid). The grid must outlive the table. With `ranks` (every rank calling with the same arguments), each
+  /// rank computes its rankShare of the z-layers of tiles and the ranks exchange them: the same table.
+  PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells, Reconstruction kind,
+                    const Collective* ranks = nullptr);
 
   /// The data at grid point `index` (grid.index), which must be a corner of one of the table's cells (throws
   /// Error otherwise).
@@ -32,7 +35,8 @@ class PointHermiteTable {
 
  private:
   bool holds(std::int64_t index) const;
-  std::size_t rank(std::int64_t index) const;  ///< of a point held
+  std::size_t rank(std::int64_t index) const;       ///< of a point held
+  std::size_t heldBelow(std::int64_t index) const;  ///< points held before grid point `index` (<= size())
   const DenseGrid* grid_ = nullptr;
   std::vector<std::uint64_t> present_;  ///< bit per grid point (grid.index order)
   std::vector<std::uint32_t> before_;   ///< points present in the words before each word of present_
