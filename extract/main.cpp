@@ -378,7 +378,8 @@ int main(int argc, char** argv) {
       "Examples:\n"
       "  extract data/blobs.nhdr --iso 0.5 -o blobs.cip\n"
       "  extract sphere --resolution 64 --normals exact -o sphere.cip\n"
-      "  extract head.raw --dims 64,64,93 --type int16 --spacing 3.2,3.2,1.5 --iso 500 -o head.cip"};
+      "  extract head.raw --dims 64,64,93 --type int16 --spacing 3.2,3.2,1.5 --iso 500 -o head.cip\n"
+      "  mpirun -np 4 extract tooth.nhdr --iso 120 -o tooth.cip --threads 2   (the same file; docs/mpi.md)"};
   app.add_option("input", opt.input, "volume file or analytic field name, e.g. tooth.nhdr or sphere")
       ->required();
   app.add_option("-o,--output", opt.output, "model file to write (.cip), e.g. -o tooth.cip")->required();
