@@ -61,7 +61,8 @@ def main():
             base = [exe] + inp + ["--quiet"]
             cmds = {
                 "np1": mpirun + ["-np", "1"] + base + ["--threads", "1", "-o", out["np1"]],
-                "np2": mpirun + ["-np", "2"] + base + ["--threads", "1", "-o", out["np2"]],
+                "np2": mpirun + ["-np", "2"] + base + ["--threads", "1", "-o", out["np2"], "--stats-json",
+                                                       os.path.join(tmp, "np2.json")],
                 "t2": base + ["--threads", "2", "-o", out["t2"]],
             }
             stats = os.path.join(tmp, "stats.json")
@@ -75,16 +76,22 @@ def main():
             split = sum(build[k] for k in ("build_scan", "build_reference", "build_isovertices", "build_assemble",
                                            "build_fit"))
             times = {k: [] for k in cmds}
+            exchange = []  # np 2: rank 0's seconds in the exchanges
             for _ in range(args.rounds):
                 for k, cmd in cmds.items():
                     times[k].append(timed(cmd, env))
+                    if k == "np2":
+                        with open(os.path.join(tmp, "np2.json")) as f:
+                            mpi = json.load(f)["mpi"]
+                        exchange.append(mpi["exchange_seconds"])
+                        sent = mpi["exchanged_bytes"]
                     if not filecmp.cmp(out["plain"], out[k], shallow=False):
                         sys.exit("%s: %s wrote another model than the plain run" % (name, k))
             ratio = lambda a, b: statistics.median(x / y for x, y in zip(times[a], times[b]))
             whole = build["build"] + build["read"] + build["write_model"] + build["read_back_model"]
             rows.append((name, cells, split / whole, statistics.median(times["np1"]),
                          statistics.median(times["np2"]), statistics.median(times["t2"]), ratio("np1", "np2"),
-                         ratio("np1", "t2")))
+                         ratio("np1", "t2"), sent / 1e6, statistics.median(exchange)))
     load_after = os.getloadavg()
     print("Machine: %s, %d cores (%s); %d rounds, medians; every run's model equal to the plain run's, byte for byte."
           % (platform.node(), os.cpu_count(), platform.processor() or platform.machine(), args.rounds))
@@ -92,10 +99,12 @@ def main():
           % (load_before[0], load_after[0]))
     print()
     print("| input | patch cells | split passes, share of the timed stages (upper bound) | np 1 × 1 thread, s | np 2 × 1 thread, s "
-          "| 1 process × 2 threads, s | speed-up np 2 | speed-up 2 threads |")
-    print("|---|---|---|---|---|---|---|---|")
-    for name, cells, share, np1, np2, t2, r2, rt in rows:
-        print("| %s | %d | %.0f %% | %.3f | %.3f | %.3f | %.2f× | %.2f× |" % (name, cells, 100 * share, np1, np2, t2, r2, rt))
+          "| 1 process × 2 threads, s | speed-up np 2 | speed-up 2 threads | np 2: MB each rank sends "
+          "| np 2: s in exchanges |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, cells, share, np1, np2, t2, r2, rt, mb, ex in rows:
+        print("| %s | %d | %.0f %% | %.3f | %.3f | %.3f | %.2f× | %.2f× | %.1f | %.2f |"
+              % (name, cells, 100 * share, np1, np2, t2, r2, rt, mb, ex))
 
 
 if __name__ == "__main__":

@@ -69,7 +69,10 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
                   {"bounds", {{"lo", {lo[0], lo[1], lo[2]}}, {"hi", {hi[0], hi[1], hi[2]}}}},
                   {"index_to_world", rows}};
   }
-  j["mpi"] = {{"ranks", s.ranks}, {"cells_per_rank", s.cellsPerRank}};
+  j["mpi"] = {{"ranks", s.ranks},
+              {"cells_per_rank", s.cellsPerRank},
+              {"exchanged_bytes", s.exchangedBytes},
+              {"exchange_seconds", s.exchangeSeconds}};
   j["seconds"] = s.seconds;
   j["bytes_written"] = s.bytesWritten;
   std::string text = j.dump(2) + "\n";

@@ -28,6 +28,8 @@ struct ExtractStats {
   WorldTransform world;  ///< grid frame -> the world the meshes and "world" stats are given in
   int ranks = 1;         ///< processes the build ran on (mpirun -np; docs/mpi.md)
   std::vector<std::size_t> cellsPerRank;  ///< the patch cells each rank built (rankShare of the cells)
+  std::uint64_t exchangedBytes = 0;       ///< bytes rank 0 sent to the others during the build (docs/mpi.md)
+  double exchangeSeconds = 0;             ///< seconds rank 0 spent in those exchanges, waiting included
 };
 
 /// Writes the stats and the model's counts (the file format version, non-empty cells, isovertices, corners,
@@ -39,8 +41,9 @@ struct ExtractStats {
 /// --check-storage, "storage": how far the stored model's surface lies from the built one's
 /// (model_displacement.h). With --check-holes, "holes": the cells whose patch leaks through an open face
 /// ("open_face_leak_cells", their count; "cells", the grid index (i, j, k) of the first 1000; "lattice").
-/// "mpi": the processes the build ran on ("ranks", 1 without mpirun) and the patch cells each built
-/// ("cells_per_rank", docs/mpi.md).
+/// "mpi": the processes the build ran on ("ranks", 1 without mpirun), the patch cells each built
+/// ("cells_per_rank") and rank 0's share of the exchanges ("exchanged_bytes" it sent, "exchange_seconds";
+/// docs/mpi.md).
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

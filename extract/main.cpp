@@ -340,6 +340,10 @@ int runOne(const Options& opt, const Input& in, cip::BuildOptions options, cip::
     const auto [first, end] = cip::rankShare(model.cells.size(), r, stats.ranks);
     stats.cellsPerRank.push_back(end - first);
   }
+  if (opt.mpi) {
+    stats.exchangedBytes = opt.mpi->bytesSent();
+    stats.exchangeSeconds = opt.mpi->exchangeSeconds();
+  }
   // Every rank holds the same model now; rank 0 writes it once all ranks got here (one that failed has
   // ended the run instead: no output then).
   if (opt.mpi) opt.mpi->barrier();

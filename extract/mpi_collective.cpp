@@ -46,6 +46,8 @@ MpiWorld::~MpiWorld() {
 }
 
 std::vector<std::vector<std::uint8_t>> MpiWorld::allgather(const std::vector<std::uint8_t>& mine) const {
+  const double start = MPI_Wtime();
+  bytesSent_ += mine.size();
   const auto n = static_cast<std::size_t>(size_);
   std::vector<std::uint64_t> sizes(n);
   const std::uint64_t mySize = mine.size();
@@ -78,6 +80,7 @@ std::vector<std::vector<std::uint8_t>> MpiWorld::allgather(const std::vector<std
       std::copy(round.begin() + displs[r], round.begin() + displs[r] + counts[r],
                 all[r].begin() + static_cast<std::ptrdiff_t>(at));
   }
+  exchangeSeconds_ += MPI_Wtime() - start;
   return all;
 }
 

@@ -1,5 +1,6 @@
 // extract across processes under mpirun (docs/mpi.md): MPI's world as libcip's Collective.
 #pragma once
+#include <cstdint>
 #include <memory>
 
 #include "cip/core/collective.h"
@@ -19,6 +20,10 @@ class MpiWorld : public Collective {
   int rank() const override { return rank_; }
   int size() const override { return size_; }
   std::vector<std::vector<std::uint8_t>> allgather(const std::vector<std::uint8_t>& mine) const override;
+  /// What this rank's allgathers moved so far: the bytes it sent and the seconds spent in them (waiting for
+  /// the other ranks included), for --stats-json.
+  std::uint64_t bytesSent() const { return bytesSent_; }
+  double exchangeSeconds() const { return exchangeSeconds_; }
   /// Waits until every rank got here (a rank that failed has called abort instead, ending them all).
   void barrier() const;
   /// Ends every rank of the run with exit code `code` (MPI_Abort): a rank that fails takes the run down.
@@ -27,6 +32,8 @@ class MpiWorld : public Collective {
  private:
   MpiWorld() = default;
   int rank_ = 0, size_ = 1;
+  mutable std::uint64_t bytesSent_ = 0;
+  mutable double exchangeSeconds_ = 0;
 };
 
 }  // namespace cip

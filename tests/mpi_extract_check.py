@@ -76,6 +76,8 @@ def check_stats(path, n, what):
     per = mpi.get("cells_per_rank", [])
     if mpi.get("ranks") != n or len(per) != n or sum(per) != cells or max(per) - min(per) > 1:
         return [f"{what}: stats mpi {mpi} do not split {cells} cells between {n} ranks"]
+    if (mpi.get("exchanged_bytes", -1) > 0) != (n > 1) or mpi.get("exchange_seconds", -1) < 0:
+        return [f"{what}: stats mpi {mpi}: rank 0 exchanged bytes with {n - 1} other ranks?"]
     return []
 
 
