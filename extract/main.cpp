@@ -4,6 +4,7 @@
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -238,11 +239,14 @@ void checkHoles(const Options& opt, const cip::Model& stored, cip::ExtractStats&
 }
 
 /// For the tests of a failing rank only (docs/mpi.md): CIP_TEST_FAIL_RANK=r makes rank r (0 in a plain run)
-/// fail after reading its input, as a bad slab or a rank out of memory would.
+/// fail after reading its input, as a bad slab or a rank out of memory would; with CIP_TEST_FAIL_HOW=kill it
+/// dies of SIGKILL instead, as a rank the system killed.
 void injectTestFault(const Options& opt) {
   const char* rank = std::getenv("CIP_TEST_FAIL_RANK");
-  if (rank && std::atoi(rank) == (opt.mpi ? opt.mpi->rank() : 0))
-    throw cip::Error("failure injected for a test (CIP_TEST_FAIL_RANK)");
+  if (!rank || std::atoi(rank) != (opt.mpi ? opt.mpi->rank() : 0)) return;
+  const char* how = std::getenv("CIP_TEST_FAIL_HOW");
+  if (how && std::string(how) == "kill") std::raise(SIGKILL);
+  throw cip::Error("failure injected for a test (CIP_TEST_FAIL_RANK)");
 }
 
 /// Builds the model, naming the flag that skips NaN cells when the input has some.

@@ -96,6 +96,12 @@ def check_failures(args, tmp):
             failures.append(f"failing rank {n - 1} of {n}: exit {r.returncode}, stderr: {r.stderr.strip()}")
         if os.path.exists(out):
             failures.append(f"failing rank {n - 1} of {n}: left {out}")
+    # A rank killed (SIGKILL, CIP_TEST_FAIL_HOW=kill): mpirun ends the others, the run fails, no file.
+    env = dict(os.environ, CIP_TEST_FAIL_RANK="1", CIP_TEST_FAIL_HOW="kill")
+    r = run(mpirun_prefix(args.mpirun, 2) + ["-x", "CIP_TEST_FAIL_RANK", "-x", "CIP_TEST_FAIL_HOW"] + base, env=env)
+    print(f"killed rank 1 of 2: exit {r.returncode}")
+    if r.returncode == 0 or os.path.exists(out):
+        failures.append(f"killed rank 1 of 2: exit {r.returncode}, file left: {os.path.exists(out)}")
     # A truncated raw file: every rank's read fails with the reader's message.
     raw = os.path.join(tmp, "short.raw")
     with open(raw, "wb") as f:
