@@ -83,6 +83,10 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
   struct rusage usage {};
   if (getrusage(RUSAGE_SELF, &usage) == 0)
     j["peak_rss_bytes"] = static_cast<std::int64_t>(usage.ru_maxrss) * 1024;
+  j["mpi"] = {{"ranks", s.ranks},
+              {"cells_per_rank", s.cellsPerRank},
+              {"exchanged_bytes", s.exchangedBytes},
+              {"exchange_seconds", s.exchangeSeconds}};
   j["seconds"] = s.seconds;
   j["bytes_written"] = s.bytesWritten;
   std::string text = j.dump(2) + "\n";

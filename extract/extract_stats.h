@@ -28,6 +28,10 @@ struct ExtractStats {
   int modelVersion = 2;               ///< the format the model file was written in
   std::optional<StreamStats> stream;  ///< set when the volume was built slab by slab (--stream)
   WorldTransform world;               ///< grid frame -> the world the meshes and "world" stats are given in
+  int ranks = 1;                      ///< processes the build ran on (mpirun -np; docs/mpi.md)
+  std::vector<std::size_t> cellsPerRank;  ///< the patch cells each rank built (rankShare of the cells)
+  std::uint64_t exchangedBytes = 0;       ///< bytes rank 0 sent to the others during the build (docs/mpi.md)
+  double exchangeSeconds = 0;             ///< seconds rank 0 spent in those exchanges, waiting included
 };
 
 /// Writes the stats and the model's counts (the file format version, non-empty cells, isovertices, corners,
@@ -42,6 +46,9 @@ struct ExtractStats {
 /// "stream": whether the volume was built slab by slab ("streamed") and, when it was, the slabs per pass,
 /// the cells each owns, the halo slices, the passes over the file, the bytes of samples held at once and the
 /// seconds spent reading. "peak_rss_bytes": the process's peak resident memory so far (getrusage).
+/// "mpi": the processes the build ran on ("ranks", 1 without mpirun), the patch cells each built
+/// ("cells_per_rank") and rank 0's share of the exchanges ("exchanged_bytes" it sent, "exchange_seconds";
+/// docs/mpi.md).
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

@@ -4,7 +4,9 @@
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <limits>
@@ -25,6 +27,7 @@
 #include "cip/volume/analytic_field.h"
 #include "extract_stats.h"
 #include "huge_page_restart.h"
+#include "mpi_collective.h"
 #include "streamed_input.h"
 
 namespace {
@@ -49,6 +52,9 @@ struct Options {
   int frame = -1;  // 4-D NIfTI / MetaImage: the frame to read
   std::vector<double> spacing, origin;
   std::uint64_t offset = 0;
+  cip::MpiWorld* mpi = nullptr;  ///< set under mpirun (docs/mpi.md)
+  /// Rank 0 (or a plain run): the rank that shows progress, writes the outputs and prints the summary.
+  bool leader() const { return !mpi || mpi->rank() == 0; }
 };
 
 cip::Vec3 vec3(const std::vector<double>& v, const cip::Vec3& fallback, const char* what) {
@@ -162,7 +168,7 @@ double isovalue(const Options& opt, const Input& in) {
   } else {
     throw cip::Error(opt.input + ": no default isovalue for this input; give one with --iso");
   }
-  if (!in.streamed) warnOutsideRange(iso, in.volume.range());
+  if (!in.streamed && opt.leader()) warnOutsideRange(iso, in.volume.range());
   return iso;
 }
 
@@ -252,10 +258,22 @@ void checkHoles(const Options& opt, const cip::Model& stored, cip::ExtractStats&
                  stats.holeCells->size(), stored.cells.size());
 }
 
+/// For the tests of a failing rank only (docs/mpi.md): CIP_TEST_FAIL_RANK=r makes rank r (0 in a plain run)
+/// fail after reading its input, as a bad slab or a rank out of memory would; with CIP_TEST_FAIL_HOW=kill it
+/// dies of SIGKILL instead, as a rank the system killed.
+void injectTestFault(const Options& opt) {
+  const char* rank = std::getenv("CIP_TEST_FAIL_RANK");
+  if (!rank || std::atoi(rank) != (opt.mpi ? opt.mpi->rank() : 0)) return;
+  const char* how = std::getenv("CIP_TEST_FAIL_HOW");
+  if (how && std::string(how) == "kill") std::raise(SIGKILL);
+  throw cip::Error("failure injected for a test (CIP_TEST_FAIL_RANK)");
+}
+
 /// Builds the model, naming the flag that skips NaN cells when the input has some.
 cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options, cip::ExtractStats& stats) {
-  cip::ProgressBar bar("building", !opt.quiet);
-  options.progress = [&](double f) { bar.update(f); };
+  cip::ProgressBar bar("building", !opt.quiet && opt.leader());  // rank 0 reports the whole build
+  if (opt.leader()) options.progress = [&](double f) { bar.update(f); };
+  options.collective = opt.mpi;
   cip::FittingStats fitting;
   if (options.method == cip::PatchMethod::Fitted) options.fittingStats = &fitting;
   if (options.normals == cip::NormalMode::Exact) {
@@ -273,7 +291,7 @@ cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options,
       model = cip::buildModelStreamed(in.geometry(), in.streamed->source(), options,
                                       in.streamed->layout().description, stream, &streamStats);
       stats.stream = streamStats;
-      if (!opt.labels && !opt.label) warnOutsideRange(options.isovalue, in.streamed->range());
+      if (!opt.labels && !opt.label && opt.leader()) warnOutsideRange(options.isovalue, in.streamed->range());
     } else {
       model = cip::buildModel(in.volume.geometry, in.volume.bricks, options, in.volume.description);
     }
@@ -307,6 +325,7 @@ int run(const Options& opt) {
   cip::BuildOptions readOptions = options;  // the apron the bricks need
   if (opt.labels) readOptions.label = 0;
   Input in = readInput(opt, readOptions, stats);
+  injectTestFault(opt);
   // A --space the volume cannot be converted to fails here, before the build.
   stats.world = cip::WorldTransform::of(in.geometry(), outputSpace(opt));
   stats.dims = in.geometry().dims;
@@ -350,6 +369,19 @@ int runOne(const Options& opt, const Input& in, cip::BuildOptions options, cip::
   stats.seconds["build_isovertices"] = timings.isovertices;
   stats.seconds["build_assemble"] = timings.assemble;
   stats.seconds["build_fit"] = timings.fit;
+  stats.ranks = opt.mpi ? opt.mpi->size() : 1;
+  for (int r = 0; r < stats.ranks; ++r) {
+    const auto [first, end] = cip::rankShare(model.cells.size(), r, stats.ranks);
+    stats.cellsPerRank.push_back(end - first);
+  }
+  if (opt.mpi) {
+    stats.exchangedBytes = opt.mpi->bytesSent();
+    stats.exchangeSeconds = opt.mpi->exchangeSeconds();
+  }
+  // Every rank holds the same model now; rank 0 writes it once all ranks got here (one that failed has
+  // ended the run instead: no output then).
+  if (opt.mpi) opt.mpi->barrier();
+  if (!opt.leader()) return 0;
 
   // Everything after this point describes the model as the file stores it (format 2 quantises), never the
   // model as built.
@@ -372,19 +404,8 @@ int runOne(const Options& opt, const Input& in, cip::BuildOptions options, cip::
   return 0;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  Options opt;
-  CLI::App app{
-      "extract: turn a volume into a corner-patch model (.cip).\n"
-      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz or .hdr/.img, .mha/.mhd, .vdb, a DICOM folder or\n"
-      ".dcm, or raw with --dims/--type) or an analytic field name (sphere, torus, gyroid, marschner-lobb,\n"
-      "plane) sampled over [-1,1]^3.\n\n"
-      "Examples:\n"
-      "  extract data/blobs.nhdr --iso 0.5 -o blobs.cip\n"
-      "  extract sphere --resolution 64 --normals exact -o sphere.cip\n"
-      "  extract head.raw --dims 64,64,93 --type int16 --spacing 3.2,3.2,1.5 --iso 500 -o head.cip"};
+/// The command line's options and flags, each with its help text and an example.
+void defineOptions(CLI::App& app, Options& opt) {
   app.add_option("input", opt.input, "volume file or analytic field name, e.g. tooth.nhdr or sphere")
       ->required();
   app.add_option("-o,--output", opt.output, "model file to write (.cip), e.g. -o tooth.cip")->required();
@@ -504,6 +525,23 @@ int main(int argc, char** argv) {
                "33x33 points per face, docs/method.md \"Holes\"), print it and add it to --stats-json under "
                "\"holes\", e.g. --check-holes");
   app.add_flag("-q,--quiet", opt.quiet, "no progress bar or summary on stderr, e.g. --quiet");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options opt;
+  CLI::App app{
+      "extract: turn a volume into a corner-patch model (.cip).\n"
+      "INPUT is a volume file (.nrrd/.nhdr, .nii/.nii.gz or .hdr/.img, .mha/.mhd, .vdb, a DICOM folder or\n"
+      ".dcm, or raw with --dims/--type) or an analytic field name (sphere, torus, gyroid, marschner-lobb,\n"
+      "plane) sampled over [-1,1]^3.\n\n"
+      "Examples:\n"
+      "  extract data/blobs.nhdr --iso 0.5 -o blobs.cip\n"
+      "  extract sphere --resolution 64 --normals exact -o sphere.cip\n"
+      "  extract head.raw --dims 64,64,93 --type int16 --spacing 3.2,3.2,1.5 --iso 500 -o head.cip\n"
+      "  mpirun -np 4 extract tooth.nhdr --iso 120 -o tooth.cip --threads 2   (the same file; docs/mpi.md)"};
+  defineOptions(app, opt);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -512,12 +550,25 @@ int main(int argc, char** argv) {
   const double analyticPoints =
       std::filesystem::exists(opt.input) ? 0.0 : std::pow(static_cast<double>(opt.resolution) + 1, 3);
   cip::restartWithHugePages(argv, opt.input, analyticPoints);
+  // Under mpirun, a rank's failure ends every rank (MPI_Abort) after it said why: no rank waits forever for
+  // it, and no output is written (rank 0 writes only after every rank finished the build).
+  std::unique_ptr<cip::MpiWorld> mpi;
+  std::string where;
   try {
+    if (cip::launchedByMpirun()) {
+      mpi = cip::MpiWorld::start(&argc, &argv);
+      opt.mpi = mpi.get();
+      where = " (rank " + std::to_string(mpi->rank()) + " of " + std::to_string(mpi->size()) + ")";
+    }
     return run(opt);
   } catch (const std::bad_alloc&) {
-    std::fprintf(stderr, "extract: error: out of memory\n");
+    std::fprintf(stderr, "extract: error%s: out of memory\n", where.c_str());
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "extract: error: %s\n", e.what());
+    std::fprintf(stderr, "extract: error%s: %s\n", where.c_str(), e.what());
+  }
+  if (mpi && mpi->size() > 1) {
+    std::fflush(stderr);
+    mpi->abort(1);
   }
   return 1;
 }

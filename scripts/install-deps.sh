@@ -6,6 +6,7 @@ packages=(cmake ninja-build g++ pkg-config
   libeigen3-dev libtbb-dev zlib1g-dev libbz2-dev libgdcm-dev libcli11-dev nlohmann-json3-dev libopenexr-dev libpng-dev
   libopenvdb-dev libboost-iostreams-dev libembree-dev libopenimageio-dev
   libgtest-dev libgmock-dev libbenchmark-dev libtinygltf-dev libzstd-dev libmeshoptimizer-dev draco
+  libopenmpi-dev openmpi-bin  # extract across processes under mpirun (docs/mpi.md)
   pybind11-dev python3-pybind11 python3-numpy python3-pytest python3-skimage python3-meshio python3-openimageio
   python3-nibabel python3-vtk9 python3-pydicom python3-openvdb teem-apps "$@")  # independent readers/writers for the reader tests
 missing=()

@@ -7,7 +7,9 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <type_traits>
 
 #include "cip/core/bisection.h"
 #include "cip/core/error.h"
@@ -118,12 +120,19 @@ PointRow summarizeRow(const double* v, std::int64_t begin, std::int64_t end, dou
   return row;
 }
 
-/// The summaries of the point rows of brick `b`'s cells: (ny + 1) * (nz + 1) rows, y fastest.
-std::vector<PointRow> summarizeRows(const GridBrick& b, double iso) {
+/// A z-range of a brick's cell layers (brick-local, 0 = cellBegin[2]): the part of it one rank scans.
+struct Layers {
+  std::int64_t begin = 0, end = 0;
+};
+
+/// The summaries of the point rows of brick `b`'s cells: (ny + 1) * (nz + 1) rows, y fastest; only those of
+/// the point layers `layers.begin` to `layers.end` (inclusive: the cells' corners) are filled.
+std::vector<PointRow> summarizeRows(const GridBrick& b, double iso, Layers layers) {
   const std::int64_t ny = b.cellEnd[1] - b.cellBegin[1] + 1, nz = b.cellEnd[2] - b.cellBegin[2] + 1;
   std::vector<PointRow> rows(static_cast<std::size_t>(ny * nz));
+  const std::int64_t first = ny * layers.begin, last = std::min(ny * nz, ny * (layers.end + 1));
   tbb::parallel_for(
-      tbb::blocked_range<std::int64_t>(0, ny * nz, 64), [&](const tbb::blocked_range<std::int64_t>& r) {
+      tbb::blocked_range<std::int64_t>(first, last, 64), [&](const tbb::blocked_range<std::int64_t>& r) {
         for (std::int64_t n = r.begin(); n != r.end(); ++n) {
           const double* v = &b.grid->values[static_cast<std::size_t>(
               b.grid->index(0, b.cellBegin[1] + n % ny, b.cellBegin[2] + n / ny))];
@@ -211,7 +220,8 @@ void appendRows(const std::vector<std::vector<T>>& rows, std::vector<T>& out) {
 /// rows instead of the cells: with finite samples every grid edge of the brick whose ends lie on both sides
 /// of the isovalue is an edge of one of its crossed cells, and the edges of a point row, in key order, are
 /// those from its points in x order (axes 0, 1, 2 at each point). Rows go in parallel chunks.
-std::vector<EdgeRef> brickEdges(const Input& in, std::uint32_t bi, const std::vector<PointRow>& rows) {
+std::vector<EdgeRef> brickEdges(const Input& in, std::uint32_t bi, const std::vector<PointRow>& rows,
+                                Layers layers) {
   const GridBrick& b = in.bricks[bi];
   const DenseGrid& g = *b.grid;
   const double iso = in.options.isovalue;
@@ -222,12 +232,16 @@ std::vector<EdgeRef> brickEdges(const Input& in, std::uint32_t bi, const std::ve
     lo = a.firstPositive != c.firstPositive ? x0 : std::min(a.firstChange, c.firstChange) + 1;
     hi = a.lastPositive != c.lastPositive ? x1 : std::max(a.lastChange, c.lastChange);
   };
-  const std::int64_t chunks = (ny * nz + kRowChunk - 1) / kRowChunk;
+  // The point rows of the layers' cells; the last layers also own the brick's last point layer.
+  const std::int64_t first = ny * layers.begin, last = layers.begin == layers.end ? first
+                                                       : layers.end + 1 == nz     ? ny * nz
+                                                                                  : ny * layers.end;
+  const std::int64_t chunks = (last - first + kRowChunk - 1) / kRowChunk;
   std::vector<std::vector<EdgeRef>> chunkEdges(static_cast<std::size_t>(chunks));
   tbb::parallel_for(std::int64_t(0), chunks, [&](std::int64_t chunk) {
     auto& out = chunkEdges[static_cast<std::size_t>(chunk)];
-    const std::int64_t end = std::min(ny * nz, (chunk + 1) * kRowChunk);
-    for (std::int64_t n = chunk * kRowChunk; n < end; ++n) {
+    const std::int64_t end = std::min(last, first + (chunk + 1) * kRowChunk);
+    for (std::int64_t n = first + chunk * kRowChunk; n < end; ++n) {
       const std::int64_t jr = n % ny, kr = n / ny, j = b.cellBegin[1] + jr, k = b.cellBegin[2] + kr;
       const PointRow& a = rows[static_cast<std::size_t>(n)];
       const bool hasY = jr + 1 < ny, hasZ = kr + 1 < nz;
@@ -255,40 +269,98 @@ std::vector<EdgeRef> brickEdges(const Input& in, std::uint32_t bi, const std::ve
   return edges;
 }
 
-/// Brick `bi`'s rows in parallel, appended to `scan` in row order. Rows go in chunks of kRowChunk, each with
-/// its own output, so that few vectors grow (a vector per row made the scan mostly page faults).
-void scanBrick(const Input& in, std::uint32_t bi, RowCount& rows, NonFiniteCell& bad, CellScan& scan) {
+/// The cell layers `layers` of brick `bi`, their rows in parallel, appended to `scan` in row order. Rows go
+/// in chunks of kRowChunk, each with its own output, so that few vectors grow (a vector per row made the scan
+/// mostly page faults). With `ranks` (one brick split into z-slabs between them), the ranks agree whether
+/// the whole brick is finite, so that all list its edges alike.
+void scanBrick(const Input& in, std::uint32_t bi, Layers layers, const Collective* ranks, RowCount& rows,
+               NonFiniteCell& bad, CellScan& scan) {
   const GridBrick& b = in.bricks[bi];
   std::int64_t ny = b.cellEnd[1] - b.cellBegin[1], nz = b.cellEnd[2] - b.cellBegin[2];
   if (ny <= 0 || nz <= 0 || b.cellEnd[0] <= b.cellBegin[0]) return;
-  const std::vector<PointRow> pointRows = summarizeRows(b, in.options.isovalue);
+  const std::vector<PointRow> pointRows = summarizeRows(b, in.options.isovalue, layers);
   // One brick with finite samples: its edges come from the point rows, already in key order (brickEdges).
-  const bool fromRows = in.bricks.size() == 1 && std::none_of(pointRows.begin(), pointRows.end(),
-                                                              [](const PointRow& r) { return r.nonFinite; });
-  const std::int64_t chunks = (ny * nz + kRowChunk - 1) / kRowChunk;
+  bool finite =
+      std::none_of(pointRows.begin(), pointRows.end(), [](const PointRow& r) { return r.nonFinite; });
+  if (ranks) finite = allRanks(*ranks, finite);
+  const bool fromRows = in.bricks.size() == 1 && finite;
+  const std::int64_t first = layers.begin * ny, last = layers.end * ny;
+  const std::int64_t chunks = (last - first + kRowChunk - 1) / kRowChunk;
   std::vector<std::vector<CellRef>> chunkCells(static_cast<std::size_t>(chunks));
   std::vector<std::vector<EdgeRef>> chunkEdges(chunkCells.size());
   tbb::parallel_for(std::int64_t(0), chunks, [&](std::int64_t chunk) {
     thread_local std::vector<EdgeRef> rowEdges;
     auto& cells = chunkCells[static_cast<std::size_t>(chunk)];
     auto& edges = chunkEdges[static_cast<std::size_t>(chunk)];
-    const std::int64_t end = std::min(ny * nz, (chunk + 1) * kRowChunk);
-    for (std::int64_t row = chunk * kRowChunk; row < end; ++row) {
+    const std::int64_t begin = first + chunk * kRowChunk, end = std::min(last, begin + kRowChunk);
+    for (std::int64_t row = begin; row < end; ++row) {
       rowEdges.clear();
       scanRow(in, bi, b.cellBegin[1] + row % ny, b.cellBegin[2] + row / ny, pointRows, !fromRows, cells,
               rowEdges, bad);
       edges.insert(edges.end(), rowEdges.begin(), rowEdges.end());
     }
-    const std::int64_t done = rows.done += end - chunk * kRowChunk;
+    const std::int64_t done = rows.done += end - begin;
     in.progress.set(0.3 * static_cast<double>(done) / static_cast<double>(rows.total));
   });
   appendRows(chunkCells, scan.cells);
   if (fromRows) {
-    scan.edges = brickEdges(in, bi, pointRows);
+    scan.edges = brickEdges(in, bi, pointRows, layers);
     scan.edgesUnique = true;
   } else {
     appendRows(chunkEdges, scan.edges);
   }
+}
+
+/// The cell layers of brick `bi` this rank scans: all of them, or with `ranks`, one brick's rankShare of its
+/// z-layers (slabs), or of several bricks those of its rankShare of the bricks (in brick order).
+Layers scanLayers(const Input& in, std::uint32_t bi, const Collective* ranks) {
+  const GridBrick& b = in.bricks[bi];
+  const std::int64_t nz = std::max<std::int64_t>(0, b.cellEnd[2] - b.cellBegin[2]);
+  if (!ranks) return {0, nz};
+  if (in.bricks.size() == 1) {
+    const auto [k0, k1] = rankShare(static_cast<std::size_t>(nz), ranks->rank(), ranks->size());
+    return {static_cast<std::int64_t>(k0), static_cast<std::int64_t>(k1)};
+  }
+  const auto [b0, b1] = rankShare(in.bricks.size(), ranks->rank(), ranks->size());
+  return bi >= b0 && bi < b1 ? Layers{0, nz} : Layers{0, 0};
+}
+
+/// Every rank's scan, joined in rank order: the scan one process makes (the ranks' layers and bricks are
+/// consecutive runs in the order one process scans them).
+CellScan joinScans(const Collective& ranks, const CellScan& mine) {
+  static_assert(std::is_trivially_copyable_v<CellRef> && std::is_trivially_copyable_v<EdgeRef>);
+  std::vector<std::uint8_t> bytes;
+  const std::uint64_t counts[3] = {mine.cells.size(), mine.edges.size(), mine.edgesUnique ? 1u : 0u};
+  appendBytes(bytes, counts, 3);
+  appendBytes(bytes, mine.cells.data(), mine.cells.size());
+  appendBytes(bytes, mine.edges.data(), mine.edges.size());
+  const std::vector<std::vector<std::uint8_t>> all = ranks.allgather(bytes);
+  CellScan scan;
+  scan.edgesUnique = true;
+  std::size_t cells = 0, edges = 0;
+  std::vector<std::array<std::uint64_t, 3>> rankCounts(all.size());
+  for (std::size_t r = 0; r < all.size(); ++r) {
+    if (all[r].size() < sizeof rankCounts[r]) throw Error("scan: a rank sent no counts");
+    std::memcpy(rankCounts[r].data(), all[r].data(), sizeof rankCounts[r]);
+    if (all[r].size() !=
+        sizeof rankCounts[r] + rankCounts[r][0] * sizeof(CellRef) + rankCounts[r][1] * sizeof(EdgeRef))
+      throw Error("scan: rank " + std::to_string(r) + " sent a scan of another size");
+    cells += rankCounts[r][0];
+    edges += rankCounts[r][1];
+    scan.edgesUnique = scan.edgesUnique && rankCounts[r][2];
+  }
+  resizeHuge(scan.cells, cells);
+  resizeHuge(scan.edges, edges);
+  cells = edges = 0;
+  for (std::size_t r = 0; r < all.size(); ++r) {
+    const std::uint8_t* p = all[r].data() + sizeof rankCounts[r];
+    std::memcpy(scan.cells.data() + cells, p, rankCounts[r][0] * sizeof(CellRef));
+    std::memcpy(scan.edges.data() + edges, p + rankCounts[r][0] * sizeof(CellRef),
+                rankCounts[r][1] * sizeof(EdgeRef));
+    cells += rankCounts[r][0];
+    edges += rankCounts[r][1];
+  }
+  return scan;
 }
 
 // ---- Pass 3: isovertices ----
@@ -502,6 +574,36 @@ CellLoops assembleCell(const Input& in, const CellRef& cell, EdgeCursors& edges,
   return loops;
 }
 
+/// Each rank's share of the assembled cells (rankShare), their corners and, when kept, their loops, sent to
+/// every rank: each ends with the whole table one process assembles.
+void exchangeAssembled(const Collective& ranks, Model& model, std::vector<CellLoops>& loops) {
+  static_assert(std::is_trivially_copyable_v<ModelCell> && std::is_trivially_copyable_v<CellLoops>);
+  const std::size_t n = model.cells.size();
+  auto cellRange = [&](int r) { return rankShare(n, r, ranks.size()); };
+  exchangeRanges(
+      ranks, sizeof(ModelCell), cellRange,
+      [&](std::size_t c, std::vector<std::uint8_t>& out) { appendBytes(out, &model.cells[c], 1); },
+      [&](std::size_t c, const std::uint8_t* p) { std::memcpy(&model.cells[c], p, sizeof(ModelCell)); });
+  auto cornerRange = [&](int r) {
+    const auto [c0, c1] = cellRange(r);
+    auto at = [&](std::size_t c) {
+      return c < n ? std::size_t{model.cells[c].firstCorner} : model.corners.size();
+    };
+    return std::make_pair(at(c0), at(c1));
+  };
+  exchangeRanges(
+      ranks, sizeof(std::uint32_t), cornerRange,
+      [&](std::size_t k, std::vector<std::uint8_t>& out) { appendBytes(out, &model.corners[k], 1); },
+      [&](std::size_t k, const std::uint8_t* p) {
+        std::memcpy(&model.corners[k], p, sizeof(std::uint32_t));
+      });
+  if (loops.empty()) return;
+  exchangeRanges(
+      ranks, sizeof(CellLoops), cellRange,
+      [&](std::size_t c, std::vector<std::uint8_t>& out) { appendBytes(out, &loops[c], 1); },
+      [&](std::size_t c, const std::uint8_t* p) { std::memcpy(&loops[c], p, sizeof(CellLoops)); });
+}
+
 }  // namespace
 
 namespace {
@@ -520,13 +622,21 @@ void throwIfNonFinite(const NonFiniteCell& bad) {
 CellScan scanCells(const Input& in) {
   CellScan scan;
   RowCount rows;
-  for (const auto& b : in.bricks)
-    rows.total += std::max<std::int64_t>(0, b.cellEnd[1] - b.cellBegin[1]) *
-                  std::max<std::int64_t>(0, b.cellEnd[2] - b.cellBegin[2]);
+  // Split between ranks: each scans its slabs of a single brick or its share of the bricks, then the ranks
+  // join their scans.
+  const Collective* ranks = sharedBuild(in.options);
+  std::vector<Layers> layers(in.bricks.size());
+  for (std::uint32_t bi = 0; bi < in.bricks.size(); ++bi) {
+    layers[bi] = scanLayers(in, bi, ranks);
+    rows.total += std::max<std::int64_t>(0, in.bricks[bi].cellEnd[1] - in.bricks[bi].cellBegin[1]) *
+                  (layers[bi].end - layers[bi].begin);
+  }
   NonFiniteCell bad;
-  for (std::uint32_t bi = 0; bi < in.bricks.size(); ++bi) scanBrick(in, bi, rows, bad, scan);
+  for (std::uint32_t bi = 0; bi < in.bricks.size(); ++bi)
+    if (layers[bi].begin < layers[bi].end || (ranks && in.bricks.size() == 1))  // a slab's rank agrees
+      scanBrick(in, bi, layers[bi], ranks && in.bricks.size() == 1 ? ranks : nullptr, rows, bad, scan);
   throwIfNonFinite(bad);
-  return scan;
+  return ranks ? joinScans(*ranks, scan) : scan;
 }
 
 CellScan scanBrickCells(const Input& in, std::uint32_t brick) {
@@ -535,7 +645,7 @@ CellScan scanBrickCells(const Input& in, std::uint32_t brick) {
   const GridBrick& b = in.bricks[brick];
   rows.total = std::max<std::int64_t>(1, (b.cellEnd[1] - b.cellBegin[1]) * (b.cellEnd[2] - b.cellBegin[2]));
   NonFiniteCell bad;
-  scanBrick(in, brick, rows, bad, scan);
+  scanBrick(in, brick, scanLayers(in, brick, nullptr), nullptr, rows, bad, scan);
   throwIfNonFinite(bad);
   scan.edges = uniqueEdges(std::move(scan.edges), scan.edgesUnique);
   scan.edgesUnique = true;
@@ -549,7 +659,8 @@ void addToEstimate(const Input& in, const std::vector<CellRef>& cells, SamplingE
   }
 }
 
-PointHermiteTable brickReference(const Input& in, const std::vector<CellRef>& cells, Reconstruction kind) {
+PointHermiteTable brickReference(const Input& in, const std::vector<CellRef>& cells, Reconstruction kind,
+                                 const Collective* ranks) {
   if (cells.empty()) return {};
   const GridBrick& b = in.bricks[cells[0].brick];
   std::vector<std::int64_t> local(cells.size());
@@ -557,7 +668,7 @@ PointHermiteTable brickReference(const Input& in, const std::vector<CellRef>& ce
     const auto lp = localPoint(b, in.keys.coords(cells[n].key));
     local[n] = b.grid->index(lp[0], lp[1], lp[2]);
   });
-  return PointHermiteTable(*b.grid, local, kind);
+  return PointHermiteTable(*b.grid, local, kind, ranks);
 }
 
 SampledReference prepareReference(const Input& in, const std::vector<CellRef>& cells) {
@@ -573,8 +684,8 @@ SampledReference prepareReference(const Input& in, const std::vector<CellRef>& c
   }
   // The data at the corners of each brick's crossed cells, once per grid point.
   reference.tables.resize(in.bricks.size());
-  if (in.bricks.size() == 1) {  // every cell in order
-    reference.tables[0] = brickReference(in, cells, reference.kind);
+  if (in.bricks.size() == 1) {  // every cell in order; split between ranks by z-layers of the table's tiles
+    reference.tables[0] = brickReference(in, cells, reference.kind, sharedBuild(in.options));
     return reference;
   }
   std::vector<std::vector<CellRef>> brickCells(in.bricks.size());
@@ -599,11 +710,31 @@ std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference&
                                         const std::vector<EdgeRef>& edges) {
   std::vector<IsoVertex> vertices;
   resizeHuge(vertices, edges.size());
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, edges.size()),
+  // Split between ranks: each places its share of the edges (in key order), then the ranks exchange them.
+  const Collective* ranks = sharedBuild(in.options);
+  auto share = [&](int r) { return rankShare(edges.size(), r, ranks ? ranks->size() : 1); };
+  const auto [first, last] = share(ranks ? ranks->rank() : 0);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t n = r.begin(); n != r.end(); ++n)
                         vertices[n] = edgeIsovertex(in, reference, edges[n]);
                     });
+  if (ranks)
+    exchangeRanges(
+        *ranks, 7 * sizeof(double), share,
+        [&](std::size_t n, std::vector<std::uint8_t>& out) {
+          const IsoVertex& v = vertices[n];
+          const double d[7] = {v.position[0], v.position[1], v.position[2], v.normal[0],
+                               v.normal[1],   v.normal[2],   v.weight};
+          appendBytes(out, d, 7);
+        },
+        [&](std::size_t n, const std::uint8_t* p) {
+          double d[7];
+          std::memcpy(d, p, sizeof d);
+          vertices[n].position = Vec3(d[0], d[1], d[2]);
+          vertices[n].normal = Vec3(d[3], d[4], d[5]);
+          vertices[n].weight = d[6];
+        });
   return vertices;
 }
 
@@ -615,17 +746,22 @@ std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>
   const bool keepLoops = fitsModelWide(in.options);   // the fitting works on them again
   const double end = keepLoops ? kFitProgress : 1.0;  // the fitting reports from there
   std::vector<CellLoops> loops(keepLoops ? cells.size() : 0);
+  // Split between ranks: each assembles its share of the cells, then the ranks exchange them.
+  const Collective* ranks = sharedBuild(in.options);
+  const auto [first, last] = ranks ? rankShare(cells.size(), ranks->rank(), ranks->size())
+                                   : std::make_pair(std::size_t(0), cells.size());
   std::atomic<std::size_t> cellsDone{0};
   tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, cells.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+      tbb::blocked_range<std::size_t>(first, last, 256), [&](const tbb::blocked_range<std::size_t>& r) {
         EdgeCursors cursors(edges);
         for (std::size_t c = r.begin(); c != r.end(); ++c) {
           CellLoops cellLoops = assembleCell(in, cells[c], cursors, model, model.cells[c]);
           if (keepLoops) loops[c] = cellLoops;
         }
         const std::size_t done = cellsDone += r.size();
-        in.progress.set(0.5 + (end - 0.5) * static_cast<double>(done) / static_cast<double>(cells.size()));
+        in.progress.set(0.5 + (end - 0.5) * static_cast<double>(done) / static_cast<double>(last - first));
       });
+  if (ranks) exchangeAssembled(*ranks, model, loops);
   return loops;
 }
 
@@ -653,7 +789,8 @@ void fitCoefficients(const Input& in, const std::vector<CellRef>& cells, const S
         }
         ref.metric = metric;
       },
-      [&](double fraction) { in.progress.set(kFitProgress + (1 - kFitProgress) * fraction); });
+      [&](double fraction) { in.progress.set(kFitProgress + (1 - kFitProgress) * fraction); },
+      options.collective);
   if (reference.sampled) {
     model.reconstruction = reference.kind;
     stats.reconstruction = reference.kind;

@@ -122,6 +122,11 @@ inline bool fitsModelWide(const BuildOptions& options) {
   return options.fitCoefficients && options.method == PatchMethod::Fitted;
 }
 
+/// The ranks a build is split between (BuildOptions::collective with more than one rank), or null.
+inline const Collective* sharedBuild(const BuildOptions& options) {
+  return options.collective && options.collective->size() > 1 ? options.collective : nullptr;
+}
+
 /// Scan's result: the crossed cells and, per brick row, their crossed edges without repeats (an edge shared
 /// by two bricks is listed by both), both brick by brick and row by row; for one brick of finite samples,
 /// the edges sorted and unique (edgesUnique).
@@ -142,8 +147,10 @@ CellScan scanBrickCells(const Input& in, std::uint32_t brick);
 /// Adds `cells` (crossed cells, in scan order) to Auto's estimate, from the samples of their bricks.
 void addToEstimate(const Input& in, const std::vector<CellRef>& cells, SamplingEstimator& estimator);
 
-/// The reference's data (`kind`, resolved) at the corners of `cells`, crossed cells of one brick.
-PointHermiteTable brickReference(const Input& in, const std::vector<CellRef>& cells, Reconstruction kind);
+/// The reference's data (`kind`, resolved) at the corners of `cells`, crossed cells of one brick; with
+/// `ranks`, each rank computes its share of the table and the ranks exchange them (PointHermiteTable).
+PointHermiteTable brickReference(const Input& in, const std::vector<CellRef>& cells, Reconstruction kind,
+                                 const Collective* ranks = nullptr);
 
 /// The reference of the samples: with the fitted construction, unless exact, the reconstruction (Auto
 /// resolved) and its Hermite data at the corners of the crossed cells, one table per brick.
@@ -162,12 +169,14 @@ SampledReference prepareReference(const Input& in, const std::vector<CellRef>& c
 std::vector<EdgeRef> uniqueEdges(std::vector<EdgeRef> edges, bool alreadyUnique = false);
 
 /// Pass 3: the isovertex of every edge of `edges` (uniqueEdges), in their order: the model's vertex table.
+/// With sharedBuild, each rank places its share of the edges (rankShare) and the ranks exchange them.
 std::vector<IsoVertex> placeIsovertices(const Input& in, const SampledReference& reference,
                                         const std::vector<EdgeRef>& edges);
 
 /// Pass 4, progress 0.5 to 1 (to 0.6 when fitsModelWide): model.cells and model.corners from `cells` (sorted
 /// by key) and the isovertices placed on `edges`: each cell's loops, corners and, with PatchMethod::Paper,
-/// its coefficients. Returns the cells' loops when fitsModelWide (for fitCoefficients), else nothing. Throws
+/// its coefficients. With sharedBuild, each rank assembles its share of the cells (rankShare) and the ranks
+/// exchange them. Returns the cells' loops when fitsModelWide (for fitCoefficients), else nothing. Throws
 /// cip::Error when the corners exceed 2^32 - 1.
 std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>& cells,
                                      const std::vector<EdgeRef>& edges, Model& model);

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstring>
 #include <limits>
 #include <numeric>
 
@@ -148,11 +149,12 @@ FaceTable buildFaceTable(const Model& model, const std::vector<CellLoops>& loops
 }
 
 FittingRounds::FittingRounds(Model& model, const std::vector<CellLoops>& loops, const Reference& reference,
-                             const Progress& progress)
+                             const Progress& progress, const Collective* collective)
     : model_(model),
       loops_(loops),
       reference_(reference),
       progress_(progress),
+      collective_(collective && collective->size() > 1 ? collective : nullptr),
       numCells_(model.cells.size()),
       numVertices_(model.vertices.size()),
       baseNormal_(numVertices_),
@@ -373,7 +375,10 @@ void FittingRounds::runRounds(FittingStats& stats) {
     else
       for (std::uint32_t v : changedVertices_) setNormal(v);
     // Progress: the first round (every cell) to 0.85, each later one (fewer cells) part of what is left.
-    fitDirtyCells(round == 0 ? 0.0 : 1.0 - 0.15 / round, 1.0 - 0.15 / (round + 1));
+    if (round == 0 && collective_)
+      fitSharedRound(0.0, 0.85);
+    else
+      fitDirtyCells(round == 0 ? 0.0 : 1.0 - 0.15 / round, 1.0 - 0.15 / (round + 1));
     // A fallback round that does not reduce the unresolved cells is undone, and the rounds end: blending
     // normals cannot make a cell follow sign structure its loops do not have (a field with detail inside
     // cells), and there it only spreads failures to the neighbours (Marschner-Lobb at N = 32, exact: 160
@@ -417,6 +422,69 @@ void FittingRounds::fitDirtyCells(double from, double to) {
       }
     fitBlockCells(b0, b1);
   }
+}
+
+/// The first round (every cell) split between the ranks of collective_: each rank fits the faces its share
+/// of the cells (rankShare) owns, the ranks exchange them and every rank shares every face with its cells,
+/// then each rank fits its share's central coefficients and the ranks exchange those. Each fit reads what
+/// it reads in fitDirtyCells (a face its first cell's corners, a cell its faces' coefficients, fitted before
+/// it by a cell with a lower index), so every rank ends with the state one process computes, to the bit.
+void FittingRounds::fitSharedRound(double from, double to) {
+  const int rank = collective_->rank(), ranks = collective_->size();
+  // The faces owned by the cells c0 .. c1 (numbered in the order of their first cells).
+  auto facesOf = [&](std::size_t c0, std::size_t c1) {
+    auto byCell = [](const FaceEntry& e, std::size_t c) { return e.cell[0] < c; };
+    const auto begin = std::lower_bound(table_.faces.begin(), table_.faces.end(), c0, byCell);
+    const auto end = std::lower_bound(begin, table_.faces.end(), c1, byCell);
+    return std::pair<std::size_t, std::size_t>(static_cast<std::size_t>(begin - table_.faces.begin()),
+                                               static_cast<std::size_t>(end - table_.faces.begin()));
+  };
+  const auto [c0, c1] = rankShare(numCells_, rank, ranks);
+  const std::size_t block = std::max<std::size_t>(1, blockReference_.size());
+  const double mid = from + 0.5 * (to - from);
+  for (std::size_t b0 = c0; b0 < c1; b0 += block) {
+    if (progress_)
+      progress_(from + (mid - from) * static_cast<double>(b0 - c0) / static_cast<double>(c1 - c0));
+    fitBlockFaces(b0, std::min(c1, b0 + block));
+  }
+  constexpr std::size_t kFaceRecord = sizeof(double) + 2, kCellRecord = sizeof(double) + 1;
+  exchangeRanges(
+      *collective_, kFaceRecord,
+      [&](int r) {
+        const auto [d0, d1] = rankShare(numCells_, r, ranks);
+        return facesOf(d0, d1);
+      },
+      [&](std::size_t i, std::vector<std::uint8_t>& out) {
+        appendBytes(out, &faceCoefficient_[i], 1);
+        out.push_back(faceOk_[i]);
+        out.push_back(faceHole_[i]);
+      },
+      [&](std::size_t i, const std::uint8_t* p) {
+        std::memcpy(&faceCoefficient_[i], p, sizeof(double));
+        faceOk_[i] = p[sizeof(double)];
+        faceHole_[i] = p[sizeof(double) + 1];
+      });
+  tbb::parallel_for(std::size_t(0), table_.faces.size(), [&](std::size_t i) { shareFace(i); });
+  for (std::size_t b0 = c0; b0 < c1; b0 += block) {
+    if (progress_) progress_(mid + (to - mid) * static_cast<double>(b0 - c0) / static_cast<double>(c1 - c0));
+    const std::size_t b1 = std::min(c1, b0 + block);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(b0, b1, 32),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t j = r.begin(); j != r.end(); ++j)
+                          reference_(j, blockReference_[j - b0]);
+                      });
+    fitBlockCells(b0, b1);
+  }
+  exchangeRanges(
+      *collective_, kCellRecord, [&](int r) { return rankShare(numCells_, r, ranks); },
+      [&](std::size_t c, std::vector<std::uint8_t>& out) {
+        appendBytes(out, &model_.cells[c].central, 1);
+        out.push_back(cellOk_[c]);
+      },
+      [&](std::size_t c, const std::uint8_t* p) {
+        std::memcpy(&model_.cells[c].central, p, sizeof(double));
+        cellOk_[c] = p[sizeof(double)];
+      });
 }
 
 /// The faces that the cells b0 .. b1 of the round fit, each cell's reference kept in blockReference_.

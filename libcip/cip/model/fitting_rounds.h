@@ -9,6 +9,7 @@
 #include <functional>
 #include <vector>
 
+#include "cip/core/collective.h"
 #include "cip/model/model.h"
 #include "cip/model/patch_fitting.h"
 #include "cip/patch/face_fit.h"
@@ -46,9 +47,10 @@ class FittingRounds {
   using Progress = std::function<void(double)>;
   /// As fitModelPatches: `loops[c]` are the loops of cell c, `reference(c, ref)` sets the reference of cell
   /// c, `progress` (if set) hears the rounds' fraction done. The cells must be in grid order
-  /// (buildFaceTable); the model must have at least one cell.
+  /// (buildFaceTable); the model must have at least one cell. With `collective` (more than one rank), every
+  /// rank holds the same model and the first round's fits are split between the ranks (fitSharedRound).
   FittingRounds(Model& model, const std::vector<CellLoops>& loops, const Reference& reference,
-                const Progress& progress = {});
+                const Progress& progress = {}, const Collective* collective = nullptr);
 
   /// Step 5: every face and cell fitted with gradient normals, then rounds that blend the normals of the
   /// failed ones one level towards the edge direction and refit what they touch, while that reduces the
@@ -121,6 +123,7 @@ class FittingRounds {
 
   // The rounds.
   void fitDirtyCells(double from, double to);
+  void fitSharedRound(double from, double to);
   void fitBlockFaces(std::size_t b0, std::size_t b1);
   void fitBlockCells(std::size_t b0, std::size_t b1);
   void findNextDirtyCells();
@@ -136,6 +139,7 @@ class FittingRounds {
   const std::vector<CellLoops>& loops_;
   const Reference& reference_;
   Progress progress_;
+  const Collective* collective_;
   const std::size_t numCells_, numVertices_;
   std::vector<Vec3> baseNormal_;        ///< gradient normal of every isovertex
   std::vector<std::uint8_t> edgeAxis_;  ///< edge axis of every isovertex (a byte: most cells write theirs)

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "cip/core/collective.h"
 #include "cip/core/error.h"
 #include "cip/model/model.h"
 #include "cip/reference/reconstruction.h"
@@ -72,6 +73,11 @@ struct BuildOptions {
   /// With false, cells get their loops and corners but no side or central coefficients (all 0): the isovertex
   /// table and loops are all marching cubes needs, so this is the project's marching-cubes front end.
   bool fitCoefficients = true;
+  /// When set with more than one rank (docs/mpi.md): every rank builds from the same volume and the per-cell
+  /// work is split between the ranks by rankShare over the model's cells (in key order) and exchanged, so
+  /// that every rank ends with the model one process builds, bit for bit. All ranks must call buildModel
+  /// with the same arguments.
+  const Collective* collective = nullptr;
   /// Worker threads; 0 = all hardware threads.
   int threads = 0;
   /// Called with the fraction done (0..1), possibly from worker threads but never concurrently.

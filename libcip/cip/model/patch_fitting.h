@@ -14,6 +14,7 @@
 #include <functional>
 #include <vector>
 
+#include "cip/core/collective.h"
 #include "cip/model/model.h"
 #include "cip/reference/reconstruction_choice.h"
 #include "cip/reference/tricubic_reference.h"
@@ -46,9 +47,12 @@ struct FittingStats {
 /// The cells must be in grid order (by z, then y, then x, each once), as the builder makes them; otherwise
 /// throws cip::Error. `progress` (if set) is called from the calling thread with the fraction of the rounds
 /// done, between blocks of cells; an exception it throws ends the fitting (the model is then left partly
-/// fitted).
+/// fitted). With `collective` (every rank calling with the same model), the first round's per-face and
+/// per-cell fits are split between the ranks by rankShare of the cells and exchanged; the result is the
+/// same on every rank and the same as without it.
 FittingStats fitModelPatches(Model& model, const std::vector<CellLoops>& loops,
                              const std::function<void(std::size_t, CellReference&)>& reference,
-                             const std::function<void(double)>& progress = {});
+                             const std::function<void(double)>& progress = {},
+                             const Collective* collective = nullptr);
 
 }  // namespace cip

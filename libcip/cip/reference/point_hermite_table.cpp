@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstring>
 #include <utility>
 
 #include "cip/core/error.h"
@@ -20,7 +21,7 @@ constexpr std::array<std::int64_t, 3> kTile{32, 16, 16};
 }  // namespace
 
 PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells,
-                                     Reconstruction kind)
+                                     Reconstruction kind, const Collective* ranks)
     : dims_(grid.geometry.dims) {
   const auto& dims = grid.geometry.dims;
   const std::int64_t dx = dims[0], dxy = dims[0] * dims[1];
@@ -49,7 +50,14 @@ PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<st
   // The points of one tile: their box-local positions over the tile's bounding box of points.
   std::array<std::int64_t, 3> tiles;
   for (int a = 0; a < 3; ++a) tiles[a] = (dims[a] + kTile[a] - 1) / kTile[a];
-  tbb::parallel_for(std::int64_t(0), tiles[0] * tiles[1] * tiles[2], [&](std::int64_t t) {
+  // Split between ranks: rank r computes the r-th run of z-layers of tiles, whose points are a run of data_.
+  const std::int64_t layer = tiles[0] * tiles[1];
+  auto layers = [&](int r) {
+    const auto share = rankShare(static_cast<std::size_t>(tiles[2]), r, ranks ? ranks->size() : 1);
+    return std::make_pair(static_cast<std::int64_t>(share.first), static_cast<std::int64_t>(share.second));
+  };
+  const auto [z0, z1] = layers(ranks ? ranks->rank() : 0);
+  tbb::parallel_for(z0 * layer, z1 * layer, [&](std::int64_t t) {
     const std::array<std::int64_t, 3> begin{(t % tiles[0]) * kTile[0], (t / tiles[0] % tiles[1]) * kTile[1],
                                             t / (tiles[0] * tiles[1]) * kTile[2]};
     std::array<std::int64_t, 3> end, lo = dims, hi{-1, -1, -1};
@@ -86,6 +94,24 @@ PointHermiteTable::PointHermiteTable(const DenseGrid& grid, const std::vector<st
     for (std::size_t n = 0; n < points.size(); ++n)
       data_[rank(grid.index(points[n][0], points[n][1], points[n][2]))] = values[n];
   });
+  if (!ranks || ranks->size() < 2) return;
+  exchangeRanges(
+      *ranks, sizeof(PointHermite),
+      [&](int r) {
+        const auto [k0, k1] = layers(r);
+        auto below = [&](std::int64_t k) { return heldBelow(std::min(k * kTile[2], dims[2]) * dxy); };
+        return std::make_pair(below(k0), below(k1));
+      },
+      [&](std::size_t n, std::vector<std::uint8_t>& out) {
+        appendBytes(out, data_[n].data(), data_[n].size());
+      },
+      [&](std::size_t n, const std::uint8_t* p) { std::memcpy(data_[n].data(), p, sizeof(PointHermite)); });
+}
+
+std::size_t PointHermiteTable::heldBelow(std::int64_t index) const {
+  const std::size_t w = static_cast<std::size_t>(index >> 6);
+  if (w >= present_.size()) return data_.size();
+  return rank(index);
 }
 
 void PointHermiteTable::compact() {

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "cip/core/collective.h"
 #include "cip/reference/point_hermite.h"
 #include "cip/reference/tricubic_reference.h"
 #include "cip/volume/dense_grid.h"
@@ -20,8 +21,11 @@ class PointHermiteTable {
  public:
   PointHermiteTable() = default;
   /// The data at the corners of the given cells (each its lowest point's grid.index; the cell inside the
-  /// grid). The table keeps no reference to the grid.
-  PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells, Reconstruction kind);
+  /// grid). The table keeps no reference to the grid. With `ranks` (every rank calling with the same
+  /// arguments), each rank computes its rankShare of the z-layers of tiles and the ranks exchange them: the
+  /// same table.
+  PointHermiteTable(const DenseGrid& grid, const std::vector<std::int64_t>& cells, Reconstruction kind,
+                    const Collective* ranks = nullptr);
 
   /// Drops the words of the bit per grid point that hold no point, so that what the table keeps is
   /// proportional to its points, not to the grid (a streamed build keeps one table per slab of the volume);
@@ -39,6 +43,8 @@ class PointHermiteTable {
  private:
   bool holds(std::int64_t index) const;
   std::size_t rank(std::int64_t index) const;  ///< of a point held
+  /// Points held before grid point `index` (<= size()); before compact() only (the constructor uses it).
+  std::size_t heldBelow(std::int64_t index) const;
   /// The word of present_ holding grid point `index`'s bit, or -1 when no word holds it.
   std::ptrdiff_t wordOf(std::int64_t index) const;
   std::array<std::int64_t, 3> dims_{0, 0, 0};  ///< of the grid

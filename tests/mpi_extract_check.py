@@ -1,0 +1,141 @@
+#!/usr/bin/env python3
+"""extract under mpirun (docs/mpi.md): the model file of `mpirun -np N extract ARGS` must equal, byte for byte,
+the one of the plain `extract ARGS`, for N = 1, 2, 3, on the bundled sample, an analytic field, and the shared
+tooth CT and OpenVDB sphere when ../shared/data has them, with both methods. A failing rank must fail the run
+with its message and leave no model file.
+
+Usage: mpi_extract_check.py --extract build/extract/extract --mpirun /usr/bin/mpirun --root .
+"""
+import argparse
+import filecmp
+import os
+import subprocess
+import sys
+import tempfile
+
+
+def cases(root):
+    """(name, extract arguments before -o) for every input present."""
+    shared = os.path.join(root, "..", "shared", "data")
+    out = [
+        ("blobs", [os.path.join(root, "data", "blobs.nrrd"), "--iso", "128"]),
+        ("sphere48", ["sphere", "--resolution", "48"]),
+        # Marschner-Lobb with exact normals leaves cells for the rounds after the first (split) one.
+        ("marschner-lobb32", ["marschner-lobb", "--resolution", "32", "--normals", "exact"]),
+    ]
+    tooth = os.path.join(shared, "tooth.nhdr")
+    if os.path.exists(tooth):
+        out.append(("tooth", [tooth, "--iso", "120"]))
+    vdb = os.path.join(shared, "vdb", "sphere.vdb")
+    if os.path.exists(vdb):
+        out.append(("vdb-sphere", [vdb]))
+    return out
+
+
+def run(cmd, env=None):
+    return subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def mpirun_prefix(mpirun, n):
+    # CI runs as root; the machine has fewer cores than some runs have ranks.
+    return [mpirun, "--allow-run-as-root", "--oversubscribe", "-np", str(n)]
+
+
+def check_identical(args, tmp):
+    failures = []
+    for name, inp in cases(args.root):
+        for method in ("fitted", "paper"):
+            plain = os.path.join(tmp, f"{name}-{method}.cip")
+            base = [args.extract] + inp + ["--method", method, "--quiet", "--threads", "1"]
+            r = run(base + ["-o", plain])
+            if r.returncode != 0:
+                failures.append(f"{name} {method}: plain run failed: {r.stderr.strip()}")
+                continue
+            for n in args.ranks:
+                out = os.path.join(tmp, f"{name}-{method}-np{n}.cip")
+                stats = out + ".json"
+                r = run(mpirun_prefix(args.mpirun, n) + base + ["-o", out, "--stats-json", stats])
+                if r.returncode != 0:
+                    failures.append(f"{name} {method} np {n}: failed: {r.stderr.strip()}")
+                    continue
+                same = filecmp.cmp(plain, out, shallow=False)
+                print(f"{name:18s} {method:6s} np {n}: {'identical' if same else 'DIFFERENT'} "
+                      f"({os.path.getsize(out)} bytes)")
+                if not same:
+                    failures.append(f"{name} {method} np {n}: model differs from the plain run's")
+                failures += check_stats(stats, n, f"{name} {method} np {n}")
+    return failures
+
+
+def check_stats(path, n, what):
+    import json
+    with open(path) as f:
+        s = json.load(f)
+    mpi = s.get("mpi", {})
+    cells = s["model"]["non_empty_cells"]
+    per = mpi.get("cells_per_rank", [])
+    if mpi.get("ranks") != n or len(per) != n or sum(per) != cells or max(per) - min(per) > 1:
+        return [f"{what}: stats mpi {mpi} do not split {cells} cells between {n} ranks"]
+    if (mpi.get("exchanged_bytes", -1) > 0) != (n > 1) or mpi.get("exchange_seconds", -1) < 0:
+        return [f"{what}: stats mpi {mpi}: rank 0 exchanged bytes with {n - 1} other ranks?"]
+    return []
+
+
+def check_failures(args, tmp):
+    """A failing rank fails the whole run with its message and no model file."""
+    failures = []
+    out = os.path.join(tmp, "failed.cip")
+    base = [args.extract, "sphere", "--resolution", "32", "--quiet", "-o", out]
+    # A rank failing on its own (CIP_TEST_FAIL_RANK, the test-only fault injection of docs/mpi.md): the last.
+    for n in (2, 3):
+        env = dict(os.environ, CIP_TEST_FAIL_RANK=str(n - 1))
+        r = run(mpirun_prefix(args.mpirun, n) + ["-x", "CIP_TEST_FAIL_RANK"] + base, env=env)
+        wanted = f"rank {n - 1} of {n}"
+        print(f"failing rank {n - 1} of {n}: exit {r.returncode}")
+        if r.returncode == 0 or wanted not in r.stderr or "CIP_TEST_FAIL_RANK" not in r.stderr:
+            failures.append(f"failing rank {n - 1} of {n}: exit {r.returncode}, stderr: {r.stderr.strip()}")
+        if os.path.exists(out):
+            failures.append(f"failing rank {n - 1} of {n}: left {out}")
+    # A rank killed (SIGKILL, CIP_TEST_FAIL_HOW=kill): mpirun ends the others, the run fails, no file.
+    env = dict(os.environ, CIP_TEST_FAIL_RANK="1", CIP_TEST_FAIL_HOW="kill")
+    r = run(mpirun_prefix(args.mpirun, 2) + ["-x", "CIP_TEST_FAIL_RANK", "-x", "CIP_TEST_FAIL_HOW"] + base, env=env)
+    print(f"killed rank 1 of 2: exit {r.returncode}")
+    if r.returncode == 0 or os.path.exists(out):
+        failures.append(f"killed rank 1 of 2: exit {r.returncode}, file left: {os.path.exists(out)}")
+    # A truncated raw file: every rank's read fails with the reader's message.
+    raw = os.path.join(tmp, "short.raw")
+    with open(raw, "wb") as f:
+        f.write(bytes(range(256)) * 30)  # 7680 of the 20 x 20 x 20 = 8000 bytes
+    r = run(mpirun_prefix(args.mpirun, 2) +
+            [args.extract, raw, "--dims", "20,20,20", "--type", "uint8", "--iso", "100", "--quiet", "-o", out])
+    print(f"truncated raw, np 2: exit {r.returncode}")
+    if r.returncode == 0 or "extract: error (rank" not in r.stderr:
+        failures.append(f"truncated raw under mpirun: exit {r.returncode}, stderr: {r.stderr.strip()}")
+    if os.path.exists(out):
+        failures.append(f"truncated raw under mpirun: left {out}")
+    # The plain run ignores MPI entirely: the same fault injection fails it as a one-rank run.
+    env = dict(os.environ, CIP_TEST_FAIL_RANK="0")
+    r = run(base, env=env)
+    if r.returncode == 0 or os.path.exists(out):
+        failures.append(f"plain run with a failure injected: exit {r.returncode}")
+    return failures
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--extract", required=True)
+    p.add_argument("--mpirun", required=True)
+    p.add_argument("--root", required=True)
+    p.add_argument("--ranks", default="1,2,3")
+    p.add_argument("--part", choices=["identical", "failures"], default="identical")
+    args = p.parse_args()
+    args.ranks = [int(n) for n in args.ranks.split(",")]
+    with tempfile.TemporaryDirectory() as tmp:
+        failures = check_identical(args, tmp) if args.part == "identical" else check_failures(args, tmp)
+    for f in failures:
+        print("FAIL:", f, file=sys.stderr)
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
