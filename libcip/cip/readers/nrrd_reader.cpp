@@ -902,18 +902,42 @@ std::vector<std::string> nrrdDataPaths(const std::string& path, const NrrdHeader
   return paths;
 }
 
-std::optional<DenseDataLayout> nrrdDataLayout(const std::string& path, const NrrdReadOptions& options,
-                                              std::string& whyNot) {
-  const NrrdHeader h = readNrrdHeader(path);
-  const std::uint64_t frame = chooseFrame(path, h, options.frame);
-  const std::size_t size = sampleSize(h.type);
-  const auto count = static_cast<std::uint64_t>(checkVolumeDims(path, h.dims, size, options.maxBytes));
-  const auto frames = static_cast<std::uint64_t>(h.frames);
-  if (frames > std::numeric_limits<std::uint64_t>::max() / size / count) {
-    throw Error(path + ": " + std::to_string(frames) + " frames of " + std::to_string(count) +
+namespace {
+
+/// A NRRD file's header, the frame to read and its sizes, checked: what reading it whole and reading it in
+/// slabs start from.
+struct NrrdFrame {
+  NrrdHeader header;
+  std::uint64_t frame = 0, count = 0, frames = 0;  ///< the frame read, samples per frame, frames in the file
+  std::size_t size = 0;                            ///< bytes per sample
+  std::vector<std::string> paths;                  ///< the data files
+};
+
+NrrdFrame openNrrdFrame(const std::string& path, const NrrdReadOptions& options) {
+  NrrdFrame nf;
+  nf.header = readNrrdHeader(path);
+  const NrrdHeader& h = nf.header;
+  nf.frame = chooseFrame(path, h, options.frame);
+  nf.size = sampleSize(h.type);
+  nf.count = static_cast<std::uint64_t>(checkVolumeDims(path, h.dims, nf.size, options.maxBytes));
+  nf.frames = static_cast<std::uint64_t>(h.frames);
+  if (nf.frames > std::numeric_limits<std::uint64_t>::max() / nf.size / nf.count) {
+    throw Error(path + ": " + std::to_string(nf.frames) + " frames of " + std::to_string(nf.count) +
                 " samples overflow 64 bits");
   }
-  const std::vector<std::string> paths = nrrdDataPaths(path, h);
+  nf.paths = nrrdDataPaths(path, h);
+  return nf;
+}
+
+}  // namespace
+
+std::optional<DenseDataLayout> nrrdDataLayout(const std::string& path, const NrrdReadOptions& options,
+                                              std::string& whyNot) {
+  const NrrdFrame nf = openNrrdFrame(path, options);
+  const NrrdHeader& h = nf.header;
+  const std::uint64_t frame = nf.frame, count = nf.count, frames = nf.frames;
+  const std::size_t size = nf.size;
+  const std::vector<std::string>& paths = nf.paths;
   if (h.encoding == NrrdEncoding::Ascii || h.encoding == NrrdEncoding::Hex) {
     whyNot = "ascii and hex data are read whole";
   } else if (paths.size() != 1) {
@@ -953,16 +977,10 @@ std::optional<DenseDataLayout> nrrdDataLayout(const std::string& path, const Nrr
 }
 
 DenseGrid readNrrd(const std::string& path, const NrrdReadOptions& options) {
-  const NrrdHeader h = readNrrdHeader(path);
-  const std::uint64_t frame = chooseFrame(path, h, options.frame);
-  const std::size_t size = sampleSize(h.type);
-  const auto count = static_cast<std::uint64_t>(checkVolumeDims(path, h.dims, size, options.maxBytes));
-  const auto frames = static_cast<std::uint64_t>(h.frames);
-  if (frames > std::numeric_limits<std::uint64_t>::max() / size / count) {
-    throw Error(path + ": " + std::to_string(frames) + " frames of " + std::to_string(count) +
-                " samples overflow 64 bits");
-  }
-  const std::vector<std::string> paths = nrrdDataPaths(path, h);
+  const NrrdFrame nf = openNrrdFrame(path, options);
+  const NrrdHeader& h = nf.header;
+  const std::uint64_t frame = nf.frame, count = nf.count, frames = nf.frames;
+  const std::vector<std::string>& paths = nf.paths;
   const std::uint64_t total = count * frames;
   if (total % paths.size() != 0) {
     throw Error(path + ": " + std::to_string(paths.size()) + " data files cannot hold equal parts of " +
