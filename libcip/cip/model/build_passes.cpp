@@ -619,6 +619,16 @@ void throwIfNonFinite(const NonFiniteCell& bad) {
 
 }  // namespace
 
+Model emptyModel(const GridGeometry& geometry, const BuildOptions& options, const std::string& source) {
+  Model model;
+  model.geometry = geometry;
+  model.isovalue = options.isovalue;
+  model.normalMode = options.normals;
+  model.method = options.method;
+  model.source = source;
+  return model;
+}
+
 CellScan scanCells(const Input& in) {
   CellScan scan;
   RowCount rows;

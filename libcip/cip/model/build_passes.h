@@ -117,6 +117,9 @@ struct Input {
 /// Brick-local indices of the global grid point `global` in `brick`.
 std::array<std::int64_t, 3> localPoint(const GridBrick& brick, const std::array<std::int64_t, 3>& global);
 
+/// A model with no cells yet: the grid, isovalue, normal mode, method and source of the build.
+Model emptyModel(const GridGeometry& geometry, const BuildOptions& options, const std::string& source);
+
 /// Whether the coefficients are fitted model-wide (fitCoefficients below) rather than per cell.
 inline bool fitsModelWide(const BuildOptions& options) {
   return options.fitCoefficients && options.method == PatchMethod::Fitted;

@@ -123,12 +123,7 @@ Model buildSampled(const GridGeometry& geometry, const std::vector<GridBrick>& b
   }
   build::Progress progress(options.progress);
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
-  Model model;
-  model.geometry = geometry;
-  model.isovalue = options.isovalue;
-  model.normalMode = options.normals;
-  model.method = options.method;
-  model.source = source;
+  Model model = build::emptyModel(geometry, options, source);
 
   BuildTimings timings;
   using Clock = std::chrono::steady_clock;

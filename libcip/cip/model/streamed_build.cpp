@@ -274,12 +274,7 @@ Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const B
     std::stable_sort(harvest.cells.begin(), harvest.cells.end());
   timings.isovertices += secondsSince(mark);
   progress.set(0.5);
-  Model model;
-  model.geometry = geometry;
-  model.isovalue = o.isovalue;
-  model.normalMode = o.normals;
-  model.method = o.method;
-  model.source = source;
+  Model model = build::emptyModel(geometry, o, source);
   model.vertices = std::move(harvest.vertices);
   harvest.sharedPlane.clear();
   mark = Clock::now();
