@@ -19,9 +19,9 @@ namespace {
 // Measured on gyroid models of 10 k to 2.5 M cells (docs/raycast.md, "Memory"; benchmarks/raycast_memory.py
 // compares the estimate with the peak): Embree's BVH over one user-geometry box per cell (127-151 bytes), the
 // version 2 decoder's buffers besides the tables at their peak (the chunks' decoded streams, the loop
-// neighbours of every vertex: 117-135 bytes per cell), the process before it reads anything (shared libraries,
-// 12-14 MiB) and per pixel the image's RGBA, depth, normal, id and curvature (40 bytes) and the EXR writer's
-// buffers (3-4 more).
+// neighbours of every vertex: 117-135 bytes per cell), the process before it reads anything (shared
+// libraries, 12-14 MiB) and per pixel the image's RGBA, depth, normal, id and curvature (40 bytes) and the
+// EXR writer's buffers (3-4 more).
 constexpr std::uint64_t kEmbreeBytesPerCell = 152;
 constexpr std::uint64_t kDecodeBytesPerCell = 140;
 constexpr std::uint64_t kProcessBytes = 16u << 20;
@@ -79,11 +79,13 @@ std::uint64_t cgroupRoom() {
     const char* usageFile = v1 ? "/memory.usage_in_bytes" : "/memory.current";
     for (const std::string& root : roots) {
       // From the process's own cgroup up to the root of the mount (a cgroup namespace shows "/" here).
-      for (std::string p = path;; p = p.substr(0, p.find_last_of('/'))) {
+      for (std::string p = path;;) {
         std::uint64_t limit = 0, usage = 0;
         if (readCgroupNumber(root + p + limitFile, limit) && readCgroupNumber(root + p + usageFile, usage))
           room = std::min(room, limit > usage ? limit - usage : 0);
-        if (p.empty() || p == "/") break;
+        const std::size_t slash = p.find_last_of('/');
+        if (p.empty() || p == "/" || slash == std::string::npos) break;  // a path without '/' ends here too
+        p.resize(slash);
       }
     }
   }
