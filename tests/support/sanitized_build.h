@@ -1,0 +1,15 @@
+// Whether this test program was built with AddressSanitizer (the CIP_SANITIZE build that scripts/test.sh runs
+// after the Release one), where the library runs several times slower. Suites whose large cases check numbers
+// rather than memory use keep those cases to the Release run; the sanitizer run still takes every code path
+// on the smaller cases.
+#pragma once
+
+namespace cip::test {
+
+#if defined(__SANITIZE_ADDRESS__)
+inline constexpr bool kSanitizedBuild = true;
+#else
+inline constexpr bool kSanitizedBuild = false;
+#endif
+
+}  // namespace cip::test
