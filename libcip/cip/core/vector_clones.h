@@ -37,16 +37,34 @@
 #endif
 #endif
 
+#include <atomic>
+
 namespace cip {
 
-/// Whether this processor runs AVX2 (asked once).
+namespace detail {
+inline std::atomic<bool>& avx2KernelsOff() {
+  static std::atomic<bool> off{false};
+  return off;
+}
+}  // namespace detail
+
+/// Whether the AVX2 kernels run: this processor has AVX2 (asked once) and setAvx2Kernels(false) did not turn
+/// them off.
 inline bool hasAvx2() {
 #if defined(CIP_HAS_AVX2_KERNELS)
   static const bool avx2 = __builtin_cpu_supports("avx2");
-  return avx2;
+  return avx2 && !detail::avx2KernelsOff().load(std::memory_order_relaxed);
 #else
   return false;
 #endif
+}
+
+/// Turns the AVX2 kernels (CIP_AVX2_KERNEL) off or back on for the whole process, so that their baseline
+/// versions run: what a processor without AVX2 computes, for tests that compare the two bit for bit. The
+/// CIP_VECTOR_CLONES loops are chosen when the program loads and are not affected. Call it between builds,
+/// not during one.
+inline void setAvx2Kernels(bool on) {
+  detail::avx2KernelsOff().store(!on, std::memory_order_relaxed);
 }
 
 }  // namespace cip
