@@ -496,7 +496,9 @@ void defineOptions(CLI::App& app, Options& opt) {
          "--stream", opt.stream,
          "dense volume files (raw, NRRD with raw, gzip or bzip2 data, NIfTI): build the model slab by slab "
          "of z-slices, holding one slab and its halo at a time instead of the whole volume: auto (default: "
-         "when the samples as doubles take 1 GiB or more), on (always; an error when the file or options "
+         "when the samples as doubles take 1 GiB or more, and under mpirun with 2 or more ranks, so that "
+         "each "
+         "rank reads only its slabs: docs/mpi.md), on (always; an error when the file or options "
          "cannot be streamed) or off (read the whole volume). The model is the same byte for byte "
          "(docs/volumes.md), e.g. --stream on")
       ->check(CLI::IsMember({"auto", "on", "off"}));
