@@ -87,7 +87,8 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
               {"cells_per_rank", s.cellsPerRank},
               {"exchanged_bytes", s.exchangedBytes},
               {"exchange_seconds", s.exchangeSeconds},
-              {"reads_own_slabs", s.stream.has_value() && s.ranks > 1}};
+              {"reads_own_slabs",
+               s.stream && s.ranks > 1 && s.stream->ranks.size() == static_cast<std::size_t>(s.ranks)}};
   if (s.stream) {
     nlohmann::json layers = nlohmann::json::array(), slabs = nlohmann::json::array(),
                    slices = nlohmann::json::array(), bytes = nlohmann::json::array(),

@@ -320,6 +320,30 @@ TEST(CollectiveStreamedBuild, EachRankReadsItsSlabs) {
   expectRankSlabs(grid, options, 0);
 }
 
+// More ranks than cell layers: the ranks without layers read nothing and still end with the model.
+TEST(CollectiveStreamedBuild, MoreRanksThanLayers) {
+  const DenseGrid grid = fieldGrid("sphere", 3);
+  BuildOptions options;
+  options.isovalue = makeAnalyticField("sphere")->defaultIsovalue();
+  const std::vector<std::uint8_t> whole = serializeModel(buildModel(grid, options), fullPrecision());
+  const std::int64_t slice = grid.geometry.dims[0] * grid.geometry.dims[1];
+  std::vector<StreamStats> stats(6);
+  const auto models = rankModels(
+      [&](const BuildOptions& o) {
+        const SliceSource read = [&](std::int64_t z0, std::int64_t z1, double* out) {
+          std::copy(grid.values.begin() + z0 * slice, grid.values.begin() + z1 * slice, out);
+        };
+        return buildModelStreamed(grid.geometry, read, o, grid.description, {},
+                                  &stats[static_cast<std::size_t>(o.collective->rank())]);
+      },
+      options, 6);
+  for (std::size_t r = 0; r < models.size(); ++r) {
+    EXPECT_TRUE(models[r] == whole) << "rank " << r;
+    const RankSlices& mine = stats[r].ranks.at(r);
+    EXPECT_EQ(mine.slicesRead > 0, r < 3) << "rank " << r;  // 3 cell layers for 6 ranks
+  }
+}
+
 // NaN samples on the planes that ranks' slabs share (z = 8 between 3 ranks' layers, 12 between 2 ranks'),
 // their cells skipped: the edges there that both ranks list, or only the upper one, are each kept once.
 TEST(CollectiveStreamedBuild, NonFiniteSamplesOnSharedPlanes) {
