@@ -54,6 +54,7 @@ class ByteReader {
   template <class T>
   void read(T* values, std::size_t n) {
     need(n, sizeof(T));
+    if (n == 0) return;  // an empty vector's data() may be null, which memcpy must not get
     std::memcpy(static_cast<void*>(values), p_, n * sizeof(T));
     p_ += n * sizeof(T);
   }
