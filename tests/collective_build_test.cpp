@@ -5,6 +5,7 @@
 
 #include <condition_variable>
 #include <functional>
+#include <initializer_list>
 #include <limits>
 #include <mutex>
 #include <string>
@@ -240,10 +241,11 @@ std::pair<std::int64_t, std::int64_t> allowedSlices(const GridGeometry& g, const
           std::min<std::int64_t>(g.dims[2], static_cast<std::int64_t>(c1) + 1 + reach)};
 }
 
-/// Expects every rank of a streamed build split between 2, 3 and 4 ranks, reading only its allowed slices,
+/// Expects every rank of a streamed build split between `rankCounts` ranks, reading only its allowed slices,
 /// to end with the single-process streamed model, byte for byte, which is also the whole-volume model; and
 /// the stream statistics to say what each rank read.
-void expectRankSlabs(const DenseGrid& grid, BuildOptions options, std::int64_t slabCells) {
+void expectRankSlabs(const DenseGrid& grid, BuildOptions options, std::int64_t slabCells,
+                     std::initializer_list<int> rankCounts = {2, 3, 4}) {
   const std::vector<std::uint8_t> whole = serializeModel(buildModel(grid, options), fullPrecision());
   const auto& g = grid.geometry;
   const std::int64_t slice = g.dims[0] * g.dims[1];
@@ -263,7 +265,7 @@ void expectRankSlabs(const DenseGrid& grid, BuildOptions options, std::int64_t s
   EXPECT_TRUE(serializeModel(streamed(options, {0, g.dims[2]}, &single), fullPrecision()) == whole);
   ASSERT_EQ(single.ranks.size(), 1u);
   EXPECT_EQ(single.ranks[0].cellEnd, g.dims[2] - 1);
-  for (int ranks : {2, 3, 4}) {
+  for (int ranks : rankCounts) {
     std::vector<StreamStats> stats(static_cast<std::size_t>(ranks));
     const auto models = rankModels(
         [&](const BuildOptions& o) {
@@ -362,7 +364,7 @@ TEST(CollectiveStreamedBuild, NonFiniteSamplesOnSharedPlanes) {
 TEST(CollectiveStreamedBuild, DetectedMask) {
   const double iso = makeAnalyticField("sphere")->defaultIsovalue();
   const DenseGrid grid =
-      stacked(fieldGrid("sphere", 20), 4, [&](double v, std::size_t) { return v > iso ? 1.0 : 0.0; });
+      stacked(fieldGrid("sphere", 14), 4, [&](double v, std::size_t) { return v > iso ? 1.0 : 0.0; });
   BuildOptions options;
   options.isovalue = 0.5;
   FittingStats fitting;
@@ -370,7 +372,7 @@ TEST(CollectiveStreamedBuild, DetectedMask) {
   buildModel(grid, options);
   EXPECT_EQ(fitting.reconstruction, Reconstruction::Mask);
   options.fittingStats = nullptr;
-  expectRankSlabs(grid, options, 4);
+  expectRankSlabs(grid, options, 4, {2, 3});
 }
 
 // A label map: the label's field is computed in blocks along z, which the ranks' slabs hold whole.
@@ -378,13 +380,13 @@ TEST(CollectiveStreamedBuild, LabelMap) {
   const double iso = makeAnalyticField("sphere")->defaultIsovalue();
   // Labels 1 and 2 interleaved inside the balls.
   // The label's field reaches maskReach() + kMaskBlock + maskKernelRadius() (42 here) beyond a slab's cells:
-  // many small balls, 234 slices.
-  const DenseGrid grid = stacked(fieldGrid("sphere", 12), 18, [&](double v, std::size_t n) {
+  // many small balls, 143 slices.
+  const DenseGrid grid = stacked(fieldGrid("sphere", 10), 13, [&](double v, std::size_t n) {
     return v > iso ? (n % 3 == 0 && v > iso + 0.2 ? 2.0 : 1.0) : 0.0;
   });
   BuildOptions options;
   options.label = 1;
-  expectRankSlabs(grid, options, 0);
+  expectRankSlabs(grid, options, 0, {3});
 }
 
 TEST(RankShare, CoversTheItemsInOrderWithinOne) {
