@@ -86,7 +86,26 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
   j["mpi"] = {{"ranks", s.ranks},
               {"cells_per_rank", s.cellsPerRank},
               {"exchanged_bytes", s.exchangedBytes},
-              {"exchange_seconds", s.exchangeSeconds}};
+              {"exchange_seconds", s.exchangeSeconds},
+              {"reads_own_slabs",
+               s.stream && s.ranks > 1 && s.stream->ranks.size() == static_cast<std::size_t>(s.ranks)}};
+  if (s.stream) {
+    nlohmann::json layers = nlohmann::json::array(), slabs = nlohmann::json::array(),
+                   slices = nlohmann::json::array(), bytes = nlohmann::json::array(),
+                   range = nlohmann::json::array();
+    for (const RankSlices& r : s.stream->ranks) {
+      layers.push_back({r.cellBegin, r.cellEnd});
+      slabs.push_back(r.slabs);
+      slices.push_back(r.slicesRead);
+      bytes.push_back(static_cast<std::uint64_t>(r.slicesRead) * s.sliceBytes);
+      range.push_back({r.firstSlice, r.endSlice});
+    }
+    j["mpi"]["cell_layers_per_rank"] = layers;
+    j["mpi"]["slabs_per_rank"] = slabs;
+    j["mpi"]["slices_read_per_rank"] = slices;
+    j["mpi"]["read_bytes_per_rank"] = bytes;
+    j["mpi"]["slice_range_per_rank"] = range;
+  }
   j["seconds"] = s.seconds;
   j["bytes_written"] = s.bytesWritten;
   std::string text = j.dump(2) + "\n";

@@ -32,6 +32,7 @@ struct ExtractStats {
   std::vector<std::size_t> cellsPerRank;  ///< the patch cells each rank built (rankShare of the cells)
   std::uint64_t exchangedBytes = 0;       ///< bytes rank 0 sent to the others during the build (docs/mpi.md)
   double exchangeSeconds = 0;             ///< seconds rank 0 spent in those exchanges, waiting included
+  std::uint64_t sliceBytes = 0;           ///< a streamed file's bytes per z-slice, as stored (decompressed)
 };
 
 /// Writes the stats and the model's counts (the file format version, non-empty cells, isovertices, corners,
@@ -48,7 +49,11 @@ struct ExtractStats {
 /// seconds spent reading. "peak_rss_bytes": the process's peak resident memory so far (getrusage).
 /// "mpi": the processes the build ran on ("ranks", 1 without mpirun), the patch cells each built
 /// ("cells_per_rank") and rank 0's share of the exchanges ("exchanged_bytes" it sent, "exchange_seconds";
-/// docs/mpi.md).
+/// docs/mpi.md); "reads_own_slabs": whether each rank read only its z-slabs and their halo (a streamed
+/// volume), and then per rank, in rank order: the cell layers along z it built ("cell_layers_per_rank",
+/// [first, end)), its slabs, the slices it read ("slices_read_per_rank", over all passes;
+/// "read_bytes_per_rank", their bytes as stored) and the range they lie in ("slice_range_per_rank", [first,
+/// end)).
 void writeExtractStats(const std::string& path, const ExtractStats& stats, const Model& model);
 
 }  // namespace cip

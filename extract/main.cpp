@@ -136,8 +136,11 @@ Input readInput(const Options& opt, const cip::BuildOptions& build, cip::Extract
   read.vdbGrid = opt.grid;
   read.frame = opt.frame;
   read.apron = cip::brickApron(build);
-  if (auto layout = cip::streamedLayout(opt.input, read, build, cip::parseStreamMode(opt.stream))) {
+  if (auto layout = cip::streamedLayout(opt.input, read, build, cip::parseStreamMode(opt.stream),
+                                        opt.mpi ? opt.mpi->size() : 1)) {
     stats.inputType = cip::describeDenseVolume(layout->geometry, layout->description);
+    stats.sliceBytes = static_cast<std::uint64_t>(layout->geometry.dims[0] * layout->geometry.dims[1]) *
+                       cip::sampleSize(layout->type);
     in.streamed = std::make_unique<cip::StreamedVolume>(std::move(*layout));
     return in;
   }
@@ -291,7 +294,10 @@ cip::Model build(const Options& opt, const Input& in, cip::BuildOptions options,
       model = cip::buildModelStreamed(in.geometry(), in.streamed->source(), options,
                                       in.streamed->layout().description, stream, &streamStats);
       stats.stream = streamStats;
-      if (!opt.labels && !opt.label && opt.leader()) warnOutsideRange(options.isovalue, in.streamed->range());
+      if (!opt.labels && !opt.label) {
+        const auto range = in.streamed->range(opt.mpi);  // every rank's part (each read its slabs)
+        if (opt.leader()) warnOutsideRange(options.isovalue, range);
+      }
     } else {
       model = cip::buildModel(in.volume.geometry, in.volume.bricks, options, in.volume.description);
     }
@@ -333,7 +339,8 @@ int run(const Options& opt) {
 
   options.isovalue = opt.labels || opt.label ? 0.0 : isovalue(opt, in);
   if (opt.labels) {
-    const std::vector<std::int64_t> labels = in.streamed ? in.streamed->labels() : cip::labelsOf(in.volume);
+    const std::vector<std::int64_t> labels =
+        in.streamed ? in.streamed->labels(opt.mpi) : cip::labelsOf(in.volume);
     if (labels.empty()) throw cip::Error(opt.input + ": --labels found no non-zero label");
     for (const std::int64_t label : labels) {
       Options one = opt;
@@ -489,7 +496,9 @@ void defineOptions(CLI::App& app, Options& opt) {
          "--stream", opt.stream,
          "dense volume files (raw, NRRD with raw, gzip or bzip2 data, NIfTI): build the model slab by slab "
          "of z-slices, holding one slab and its halo at a time instead of the whole volume: auto (default: "
-         "when the samples as doubles take 1 GiB or more), on (always; an error when the file or options "
+         "when the samples as doubles take 1 GiB or more, and under mpirun with 2 or more ranks, so that "
+         "each "
+         "rank reads only its slabs: docs/mpi.md), on (always; an error when the file or options "
          "cannot be streamed) or off (read the whole volume). The model is the same byte for byte "
          "(docs/volumes.md), e.g. --stream on")
       ->check(CLI::IsMember({"auto", "on", "off"}));

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <set>
 
+#include "cip/core/collective.h"
 #include "cip/core/error.h"
 #include "cip/volume/sparse_volume.h"
 
@@ -17,7 +18,7 @@ StreamMode parseStreamMode(const std::string& text) {
 }
 
 std::optional<DenseDataLayout> streamedLayout(const std::string& path, const VolumeReadOptions& read,
-                                              const BuildOptions& build, StreamMode mode) {
+                                              const BuildOptions& build, StreamMode mode, int ranks) {
   if (mode == StreamMode::Off) return std::nullopt;
   std::string why = whyNotStreamed(build);
   DenseVolumeProbe probe;
@@ -32,7 +33,8 @@ std::optional<DenseDataLayout> streamedLayout(const std::string& path, const Vol
   const auto& d = probe.layout->geometry.dims;
   const double doubles =
       static_cast<double>(d[0]) * static_cast<double>(d[1]) * static_cast<double>(d[2]) * 8;
-  if (mode == StreamMode::Auto && doubles < static_cast<double>(kStreamAutoBytes)) return std::nullopt;
+  if (mode == StreamMode::Auto && ranks <= 1 && doubles < static_cast<double>(kStreamAutoBytes))
+    return std::nullopt;
   return probe.layout;
 }
 
@@ -51,18 +53,47 @@ SliceSource StreamedVolume::source() {
   };
 }
 
-std::vector<std::int64_t> StreamedVolume::labels() {
+std::pair<double, double> StreamedVolume::range(const Collective* ranks) const {
+  if (!ranks || ranks->size() <= 1) return {lo_, hi_};
+  std::vector<std::uint8_t> mine;
+  const double d[3] = {any_ ? 1.0 : 0.0, lo_, hi_};
+  appendBytes(mine, d, 3);
+  bool any = false;
+  double lo = 0, hi = 0;
+  for (const std::vector<std::uint8_t>& theirs : ranks->allgather(mine)) {
+    double t[3];
+    ByteReader(theirs).read(t, 3);
+    if (t[0] == 0) continue;
+    lo = any ? std::min(lo, t[1]) : t[1];
+    hi = any ? std::max(hi, t[2]) : t[2];
+    any = true;
+  }
+  return {lo, hi};
+}
+
+std::vector<std::int64_t> StreamedVolume::labels(const Collective* ranks) {
   const auto& d = layout().geometry.dims;
   const std::int64_t slices =
       std::max<std::int64_t>(1, (std::int64_t(64) << 20) / std::max<std::int64_t>(1, 8 * d[0] * d[1]));
+  const int size = ranks ? ranks->size() : 1;
+  const auto [first, end] = rankShare(static_cast<std::size_t>(d[2]), ranks ? ranks->rank() : 0, size);
   std::set<std::int64_t> all;
   const SliceSource read = source();
-  for (std::int64_t z0 = 0; z0 < d[2]; z0 += slices) {
-    const std::int64_t z1 = std::min(d[2], z0 + slices);
+  for (auto z0 = static_cast<std::int64_t>(first); z0 < static_cast<std::int64_t>(end); z0 += slices) {
+    const std::int64_t z1 = std::min(static_cast<std::int64_t>(end), z0 + slices);
     DenseGrid slab;
     slab.allocate({d[0], d[1], z1 - z0}, static_cast<std::size_t>(-1));
     read(z0, z1, slab.values.data());
     for (const std::int64_t l : labelsOf(fromDense(std::move(slab)))) all.insert(l);
+  }
+  if (size > 1) {
+    const std::vector<std::int64_t> mine(all.begin(), all.end());
+    std::vector<std::uint8_t> bytes;
+    appendVector(bytes, mine);
+    for (const std::vector<std::uint8_t>& theirs : ranks->allgather(bytes)) {
+      ByteReader in(theirs);
+      for (const std::int64_t l : in.vector<std::int64_t>()) all.insert(l);
+    }
   }
   return {all.begin(), all.end()};
 }

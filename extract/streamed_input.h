@@ -23,9 +23,10 @@ constexpr std::uint64_t kStreamAutoBytes = std::uint64_t(1) << 30;
 
 /// The layout of `path` when the run streams it: the file can be read in slabs (probeDenseVolume), the build
 /// can be streamed (whyNotStreamed) and `mode` says so (for On, a file or build that cannot be streamed is an
-/// error saying why). Otherwise nothing: the volume is read whole.
+/// error saying why; Auto streams a large volume, and any volume the run splits between `ranks` > 1, so that
+/// each rank reads only its slabs: docs/mpi.md). Otherwise nothing: the volume is read whole.
 std::optional<DenseDataLayout> streamedLayout(const std::string& path, const VolumeReadOptions& read,
-                                              const BuildOptions& build, StreamMode mode);
+                                              const BuildOptions& build, StreamMode mode, int ranks = 1);
 
 /// A dense volume file read slab by slab: the slice source of buildModelStreamed, which also records the
 /// range of the finite samples read.
@@ -34,10 +35,12 @@ class StreamedVolume {
   explicit StreamedVolume(DenseDataLayout layout) : reader_(std::move(layout)) {}
   const DenseDataLayout& layout() const { return reader_.layout(); }
   SliceSource source();
-  /// Smallest and largest finite sample read so far (every sample once a build has run).
-  std::pair<double, double> range() const { return {lo_, hi_}; }
-  /// labelsOf of the whole volume, reading it slab by slab.
-  std::vector<std::int64_t> labels();
+  /// Smallest and largest finite sample read so far (every sample once a build has run); with `ranks`, of
+  /// the samples every rank read (every rank calls it).
+  std::pair<double, double> range(const Collective* ranks = nullptr) const;
+  /// labelsOf of the whole volume, reading it slab by slab; with `ranks`, each rank reads its rankShare of
+  /// the slices and the ranks exchange their labels (every rank calls it).
+  std::vector<std::int64_t> labels(const Collective* ranks = nullptr);
 
  private:
   SlabReader reader_;

@@ -64,6 +64,8 @@ def check_identical(args, tmp):
                 if not same:
                     failures.append(f"{name} {method} np {n}: model differs from the plain run's")
                 failures += check_stats(stats, n, f"{name} {method} np {n}")
+                if name in ("blobs", "tooth"):  # dense files: each rank reads its own slabs
+                    failures += check_own_slabs(stats, n, f"{name} {method} np {n}")
     return failures
 
 
@@ -79,6 +81,33 @@ def check_stats(path, n, what):
     if (mpi.get("exchanged_bytes", -1) > 0) != (n > 1) or mpi.get("exchange_seconds", -1) < 0:
         return [f"{what}: stats mpi {mpi}: rank 0 exchanged bytes with {n - 1} other ranks?"]
     return []
+
+
+def check_own_slabs(path, n, what):
+    """Under mpirun, each rank of a dense file's build read only the slices of its cell layers plus the halo
+    (docs/mpi.md): the stats say which slices each read."""
+    import json
+    with open(path) as f:
+        mpi = json.load(f)["mpi"]
+    if n == 1:
+        return [] if not mpi.get("reads_own_slabs") else [f"{what}: one rank cannot split its reading"]
+    layers, ranges = mpi.get("cell_layers_per_rank", []), mpi.get("slice_range_per_rank", [])
+    read = mpi.get("slices_read_per_rank", [])
+    if not mpi.get("reads_own_slabs") or len(layers) != n or len(ranges) != n or len(read) != n:
+        return [f"{what}: stats mpi {mpi} do not say that each rank read its own slabs"]
+    slices = layers[-1][1] + 1  # the volume's slices: one more than its cell layers
+    halo = 16  # more than any reference's stencil reaches (brickApron, maskReach, Auto's estimate)
+    failures = []
+    for r in range(n):
+        (c0, c1), (z0, z1) = layers[r], ranges[r]
+        if r > 0 and c0 != layers[r - 1][1]:
+            failures.append(f"{what}: rank {r} builds layers {layers[r]} after {layers[r - 1]}")
+        if z0 < c0 - halo or z1 > c1 + 1 + halo or z1 - z0 >= slices or read[r] < z1 - z0:
+            failures.append(f"{what}: rank {r} (cell layers {c0}..{c1}) read slices {z0}..{z1} "
+                            f"({read[r]} in all) of {slices}")
+    if layers[0][0] != 0:
+        failures.append(f"{what}: the ranks' layers {layers} do not start at 0")
+    return failures
 
 
 def check_failures(args, tmp):

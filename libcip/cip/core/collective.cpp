@@ -14,6 +14,11 @@ std::pair<std::size_t, std::size_t> rankShare(std::size_t count, int rank, int s
   return {first, first + base + (r < extra ? 1 : 0)};
 }
 
+void ByteReader::need(std::uint64_t n, std::size_t bytes) const {
+  const auto left = static_cast<std::uint64_t>(end_ - p_);
+  if (bytes > 0 && n > left / bytes) throw Error("a rank's bytes end before the values they announce");
+}
+
 bool allRanks(const Collective& collective, bool mine) {
   const std::vector<std::vector<std::uint8_t>> all =
       collective.allgather(std::vector<std::uint8_t>{static_cast<std::uint8_t>(mine)});

@@ -6,6 +6,7 @@
 #pragma once
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <functional>
 #include <utility>
 #include <vector>
@@ -36,6 +37,49 @@ void appendBytes(std::vector<std::uint8_t>& out, const T* values, std::size_t n)
   const auto* p = reinterpret_cast<const std::uint8_t*>(values);
   out.insert(out.end(), p, p + n * sizeof(T));
 }
+
+/// appendBytes of the size and then the values of `values`.
+template <class T>
+void appendVector(std::vector<std::uint8_t>& out, const std::vector<T>& values) {
+  const std::uint64_t n = values.size();
+  appendBytes(out, &n, 1);
+  appendBytes(out, values.data(), values.size());
+}
+
+/// Reads back, in order, what appendBytes and appendVector wrote into one rank's bytes. Throws cip::Error
+/// when the bytes end before a value (a rank sent less than its sizes say).
+class ByteReader {
+ public:
+  explicit ByteReader(const std::vector<std::uint8_t>& bytes) : p_(bytes.data()), end_(p_ + bytes.size()) {}
+  template <class T>
+  void read(T* values, std::size_t n) {
+    need(n, sizeof(T));
+    if (n == 0) return;  // an empty vector's data() may be null, which memcpy must not get
+    std::memcpy(static_cast<void*>(values), p_, n * sizeof(T));
+    p_ += n * sizeof(T);
+  }
+  template <class T>
+  T value() {
+    T v;
+    read(&v, 1);
+    return v;
+  }
+  template <class T>
+  std::vector<T> vector() {
+    const auto n = value<std::uint64_t>();
+    need(n, sizeof(T));
+    std::vector<T> v(static_cast<std::size_t>(n));
+    read(v.data(), v.size());
+    return v;
+  }
+  bool atEnd() const { return p_ == end_; }
+
+ private:
+  /// Throws unless `n` values of `bytes` each are left.
+  void need(std::uint64_t n, std::size_t bytes) const;
+  const std::uint8_t* p_;
+  const std::uint8_t* end_;
+};
 
 /// Items of one table, each rank holding its own range of them (`range(r)`, [first, end) of rank r), sent
 /// to every rank: `pack(i, out)` appends item i's record of `recordBytes` to `out`, and every rank calls

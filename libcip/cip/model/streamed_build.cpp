@@ -13,6 +13,7 @@
 #include "cip/core/error.h"
 #include "cip/model/build_passes.h"
 #include "cip/model/patch_fitting.h"
+#include "cip/model/slab_exchange.h"
 #include "cip/reference/mask_reference.h"
 #include "cip/reference/point_hermite.h"
 
@@ -26,21 +27,29 @@ double secondsSince(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
 
-/// The slabs of a volume: slab s owns the cells [s * cells, (s + 1) * cells) along z (fewer in the last) and
-/// holds the points `halo` beyond them on either side, where the volume has them. A label map's field is
-/// computed in blocks whose result depends on the classes within the kernel's radius (smoothClass): its
-/// slabs hold, around their points and `halo`, the whole blocks of kMaskBlock slices (placed as in the
-/// volume) and the kernel's radius beyond them.
+/// The slabs of a volume: slab s owns the cell layers [starts[s], starts[s + 1]) along z and holds the points
+/// `halo` beyond them on either side, where the volume has them. A label map's field is computed in blocks
+/// whose result depends on the classes within the kernel's radius (smoothClass): its slabs hold, around their
+/// points and `halo`, the whole blocks of kMaskBlock slices (placed as in the volume) and the kernel's radius
+/// beyond them. Split between ranks, rank r owns slabs [rankFirst[r], rankFirst[r + 1]): its rankShare of the
+/// cell layers, cut into slabs of at most `cells` layers.
 struct SlabPlan {
   std::array<std::int64_t, 3> dims{};
-  std::int64_t cells = 1;
-  std::int64_t count = 0;
+  std::int64_t cells = 1;  ///< most cell layers a slab owns
+  std::vector<std::int64_t> starts;
+  std::vector<std::int64_t> rankFirst;
+  int rank = 0;
   int halo = 0;
   int blockRadius = -1;  ///< label maps: the kernel's radius; -1: no blocks to hold whole
 
+  std::int64_t count() const { return static_cast<std::int64_t>(starts.size()) - 1; }
+  /// This rank's slabs [first, second).
+  std::pair<std::int64_t, std::int64_t> mine() const {
+    return {rankFirst[static_cast<std::size_t>(rank)], rankFirst[static_cast<std::size_t>(rank) + 1]};
+  }
   /// The points [lo, hi] along z slab s holds.
   std::pair<std::int64_t, std::int64_t> points(std::int64_t s) const {
-    const std::int64_t c0 = s * cells, c1 = std::min(c0 + cells, dims[2] - 1);
+    const std::int64_t c0 = starts[static_cast<std::size_t>(s)], c1 = starts[static_cast<std::size_t>(s) + 1];
     std::int64_t lo = c0 - halo, hi = c1 + halo;
     if (blockRadius >= 0) {
       lo = std::max<std::int64_t>(lo, 0) / kMaskBlock * kMaskBlock - blockRadius;
@@ -50,7 +59,7 @@ struct SlabPlan {
   }
   /// Slab s as a brick of the volume (its grid not set).
   GridBrick brick(std::int64_t s) const {
-    const std::int64_t c0 = s * cells, c1 = std::min(c0 + cells, dims[2] - 1);
+    const std::int64_t c0 = starts[static_cast<std::size_t>(s)], c1 = starts[static_cast<std::size_t>(s) + 1];
     const std::int64_t lo = points(s).first;
     GridBrick b;
     b.offset = {0, 0, lo};
@@ -73,7 +82,8 @@ int buildHalo(const BuildOptions& options, bool mask, Reconstruction kind) {
   return brickApron(resolved);
 }
 
-SlabPlan planSlabs(const GridGeometry& geometry, int halo, int blockRadius, const StreamOptions& stream) {
+SlabPlan planSlabs(const GridGeometry& geometry, int halo, int blockRadius, const StreamOptions& stream,
+                   const Collective* ranks) {
   SlabPlan plan;
   plan.dims = geometry.dims;
   plan.halo = halo;
@@ -87,7 +97,16 @@ SlabPlan planSlabs(const GridGeometry& geometry, int halo, int blockRadius, cons
     cells = std::max<std::int64_t>(1, slices - 1 - around);
   }
   plan.cells = std::min(cells, std::max<std::int64_t>(1, cellsZ));
-  plan.count = cellsZ > 0 ? (cellsZ + plan.cells - 1) / plan.cells : 0;
+  const int size = ranks ? ranks->size() : 1;
+  plan.rank = ranks ? ranks->rank() : 0;
+  for (int r = 0; r < size; ++r) {
+    plan.rankFirst.push_back(static_cast<std::int64_t>(plan.starts.size()));
+    const auto [first, end] = rankShare(static_cast<std::size_t>(std::max<std::int64_t>(0, cellsZ)), r, size);
+    for (auto c = static_cast<std::int64_t>(first); c < static_cast<std::int64_t>(end); c += plan.cells)
+      plan.starts.push_back(c);
+  }
+  plan.rankFirst.push_back(static_cast<std::int64_t>(plan.starts.size()));
+  plan.starts.push_back(std::max<std::int64_t>(0, cellsZ));
   return plan;
 }
 
@@ -112,7 +131,13 @@ class SlabWindow {
     const auto size = static_cast<std::size_t>((hi - lo + 1) * slice_);
     if (size > grid_.values.capacity()) grid_.values.reserve(size);  // exactly: resize alone may double it
     grid_.values.resize(size);
-    if (lo + have <= hi) read_(lo + have, hi + 1, grid_.values.data() + have * slice_);
+    if (lo + have <= hi) {
+      read_(lo + have, hi + 1, grid_.values.data() + have * slice_);
+      if (reading_.slicesRead == 0) reading_.firstSlice = lo + have;
+      reading_.firstSlice = std::min(reading_.firstSlice, lo + have);
+      reading_.endSlice = std::max(reading_.endSlice, hi + 1);
+      reading_.slicesRead += hi + 1 - lo - have;
+    }
     grid_.geometry.dims[2] = hi - lo + 1;
     lo_ = lo;
     hi_ = hi;
@@ -120,12 +145,15 @@ class SlabWindow {
     return grid_;
   }
   std::size_t bytes() const { return grid_.values.capacity() * sizeof(double); }
+  /// The slices read so far.
+  RankSlices& reading() { return reading_; }
   void restart() { lo_ = hi_ = -1; }
 
  private:
   const SliceSource& read_;
   StreamStats& stats_;
   DenseGrid grid_;
+  RankSlices reading_;
   std::int64_t slice_ = 0, lo_ = -1, hi_ = -1;
 };
 
@@ -146,37 +174,38 @@ GlobalChoice choose(const GridGeometry& geometry, const BuildOptions& options, c
   // unless they are to be skipped.
   BuildOptions scanOptions = options;
   scanOptions.skipNonFinite = true;
+  const Collective* ranks = build::sharedBuild(options);
   build::TwoValuedVerdict verdict;
-  SamplingEstimator estimator;
-  std::vector<GridBrick> bricks(static_cast<std::size_t>(plan.count));
-  for (std::int64_t s = 0; s < plan.count; ++s) {
+  build::FirstPassRecord record;  // split between ranks: what this rank's slabs measured
+  SamplingEstimator estimator(ranks ? &record.terms : nullptr);
+  std::vector<GridBrick> bricks(static_cast<std::size_t>(plan.count()));
+  const auto [first, end] = plan.mine();
+  for (std::int64_t s = first; s < end; ++s) {
     const auto [lo, hi] = plan.points(s);
     const DenseGrid& samples = window.load(lo, hi);
     bricks[static_cast<std::size_t>(s)] = plan.brick(s);
     bricks[static_cast<std::size_t>(s)].grid = &samples;
-    verdict.add(detectTwoValued(samples, options.isovalue));
+    const TwoValuedSamples twoValued = detectTwoValued(samples, options.isovalue);
+    if (ranks) record.twoValued.push_back(twoValued);
+    verdict.add(twoValued);
     const build::Input in{geometry, bricks, scanOptions, build::GridKeys{geometry.dims}, progress};
     build::addToEstimate(in, build::scanBrickCells(in, static_cast<std::uint32_t>(s)).cells, estimator);
     bricks[static_cast<std::size_t>(s)].grid = nullptr;
+  }
+  if (ranks) {  // every rank's measurements, in slab order, as one process takes them
+    record.cells = estimator.cells();
+    verdict = build::TwoValuedVerdict();
+    estimator = SamplingEstimator();
+    build::gatherFirstPass(*ranks, record, verdict, estimator);
   }
   choice.mask = verdict.mask();
   choice.sampling = estimator.estimate();
   return choice;
 }
 
-/// What the slabs leave for the passes after them: crossed cells (key order), crossed edges with their
-/// isovertices (slab order; sorted afterwards), the reference's tables (one per slab, compacted).
-struct SlabHarvest {
-  std::vector<build::CellRef> cells;
-  std::vector<build::EdgeRef> edges;
-  std::vector<IsoVertex> vertices;
-  build::SampledReference reference;
-  std::vector<build::Key> sharedPlane;  ///< edges the previous slab listed on its last plane of points
-};
-
 /// The slab's scan, reference and isovertices into `out`. An edge on the plane two slabs share is placed
 /// from the lower slab, as uniqueEdges keeps the lower brick's.
-void harvestSlab(const build::Input& in, std::uint32_t s, const SlabPlan& plan, SlabHarvest& out,
+void harvestSlab(const build::Input& in, std::uint32_t s, const SlabPlan& plan, build::SlabHarvest& out,
                  BuildTimings& timings) {
   auto mark = Clock::now();
   build::CellScan scan = build::scanBrickCells(in, s);
@@ -193,7 +222,7 @@ void harvestSlab(const build::Input& in, std::uint32_t s, const SlabPlan& plan, 
   std::vector<build::EdgeRef> fresh;
   fresh.reserve(scan.edges.size());
   for (const build::EdgeRef& e : scan.edges) {
-    if (e.key >= topPlane && s + 1 < plan.count) top.push_back(e.key);
+    if (e.key >= topPlane && s + 1 < plan.count()) top.push_back(e.key);
     if (!std::binary_search(out.sharedPlane.begin(), out.sharedPlane.end(), e.key)) fresh.push_back(e);
   }
   const std::vector<IsoVertex> vertices = build::placeIsovertices(in, out.reference, fresh);
@@ -205,55 +234,22 @@ void harvestSlab(const build::Input& in, std::uint32_t s, const SlabPlan& plan, 
   timings.isovertices += secondsSince(mark);
 }
 
-/// The harvested edges and their isovertices in key order (the slabs leave them nearly so).
-void sortEdges(SlabHarvest& h) {
-  std::vector<std::uint32_t> order(h.edges.size());
-  std::iota(order.begin(), order.end(), 0u);
-  tbb::parallel_sort(order.begin(), order.end(),
-                     [&](std::uint32_t a, std::uint32_t b) { return h.edges[a].key < h.edges[b].key; });
-  std::vector<build::EdgeRef> edges(order.size());
-  std::vector<IsoVertex> vertices(order.size());
-  for (std::size_t n = 0; n < order.size(); ++n) {
-    edges[n] = h.edges[order[n]];
-    vertices[n] = h.vertices[order[n]];
-  }
-  h.edges = std::move(edges);
-  h.vertices = std::move(vertices);
-}
-
-Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const BuildOptions& options,
-                  const std::string& source, const StreamOptions& stream, StreamStats& stats) {
-  build::Progress progress(options.progress);
-  SlabWindow window(geometry, read, stats);
-  const auto start = Clock::now();
-  const GlobalChoice choice =
-      choose(geometry, options, planSlabs(geometry, kEstimateHalo, -1, stream), window, progress);
-  stats.passes = choice.sampling ? 2 : 1;
-  const BuildOptions o = choice.mask ? build::maskFieldOptions(options) : options;
-  BuildTimings timings;
-  timings.reference = secondsSince(start);
-  SlabHarvest harvest;
-  harvest.reference.sampled = o.method == PatchMethod::Fitted && o.normals != NormalMode::Exact;
-  harvest.reference.kind = o.reconstruction;
-  if (harvest.reference.sampled && o.reconstruction == Reconstruction::Auto) {
-    harvest.reference.sampling = *choice.sampling;
-    harvest.reference.kind = chooseReconstruction(*choice.sampling);
-  }
-  const SlabPlan plan = planSlabs(geometry, buildHalo(o, choice.mask, harvest.reference.kind),
-                                  options.label ? maskKernelRadius() : -1, stream);
-  stats.slabs = plan.count;
-  stats.slabCells = plan.cells;
-  stats.halo = plan.halo;
-  harvest.reference.tables.resize(static_cast<std::size_t>(plan.count));
-  std::vector<GridBrick> bricks(static_cast<std::size_t>(plan.count));
-  for (std::int64_t s = 0; s < plan.count; ++s) bricks[static_cast<std::size_t>(s)] = plan.brick(s);
-  const build::Input in{geometry, bricks, o, build::GridKeys{geometry.dims}, progress};
-  window.restart();
+/// The building pass: this rank's slabs (all of them in one process) harvested into `harvest`, whose
+/// reference is set; split between ranks, then every rank's harvest joined in slab order. `in` reads
+/// `bricks`, the plan's slabs; `mask`: the slabs' samples are replaced by maskField(samples, `options`).
+void harvestSlabs(const build::Input& in, std::vector<GridBrick>& bricks, const SlabPlan& plan,
+                  SlabWindow& window, bool mask, const BuildOptions& options, build::SlabHarvest& harvest,
+                  StreamStats& stats, BuildTimings& timings) {
+  // The slabs are this rank's alone: nothing in them is split between ranks.
+  BuildOptions own = in.options;
+  own.collective = nullptr;
+  const build::Input local{in.geometry, bricks, own, in.keys, in.progress};
   DenseGrid field;
-  for (std::int64_t s = 0; s < plan.count; ++s) {
+  const auto [first, end] = plan.mine();
+  for (std::int64_t s = first; s < end; ++s) {
     const auto [lo, hi] = plan.points(s);
     const DenseGrid* samples = &window.load(lo, hi);
-    if (choice.mask) {
+    if (mask) {
       const auto mark = Clock::now();
       field = build::maskField(*samples, options, lo);
       samples = &field;
@@ -262,14 +258,55 @@ Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const B
     stats.windowBytes =
         std::max(stats.windowBytes, window.bytes() + field.values.capacity() * sizeof(double));
     bricks[static_cast<std::size_t>(s)].grid = samples;
-    harvestSlab(in, static_cast<std::uint32_t>(s), plan, harvest, timings);
+    harvestSlab(local, static_cast<std::uint32_t>(s), plan, harvest, timings);
     bricks[static_cast<std::size_t>(s)].grid = nullptr;  // the passes below read no samples
   }
-  field = DenseGrid();
+  RankSlices reading = window.reading();
+  reading.cellBegin = plan.starts[static_cast<std::size_t>(first)];
+  reading.cellEnd = plan.starts[static_cast<std::size_t>(end)];
+  reading.slabs = end - first;
+  stats.ranks = {reading};
+  if (const Collective* ranks = build::sharedBuild(in.options)) {
+    const auto mark = Clock::now();
+    stats.ranks = build::gatherHarvests(*ranks, harvest, plan.rankFirst, reading);
+    timings.isovertices += secondsSince(mark);
+  }
+}
+
+Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const BuildOptions& options,
+                  const std::string& source, const StreamOptions& stream, StreamStats& stats) {
+  build::Progress progress(options.progress);
+  SlabWindow window(geometry, read, stats);
+  const Collective* ranks = build::sharedBuild(options);
+  const auto start = Clock::now();
+  const GlobalChoice choice =
+      choose(geometry, options, planSlabs(geometry, kEstimateHalo, -1, stream, ranks), window, progress);
+  stats.passes = choice.sampling ? 2 : 1;
+  BuildOptions o = choice.mask ? build::maskFieldOptions(options) : options;
+  BuildTimings timings;
+  timings.reference = secondsSince(start);
+  build::SlabHarvest harvest;
+  harvest.reference.sampled = o.method == PatchMethod::Fitted && o.normals != NormalMode::Exact;
+  harvest.reference.kind = o.reconstruction;
+  if (harvest.reference.sampled && o.reconstruction == Reconstruction::Auto) {
+    harvest.reference.sampling = *choice.sampling;
+    harvest.reference.kind = chooseReconstruction(*choice.sampling);
+  }
+  const SlabPlan plan = planSlabs(geometry, buildHalo(o, choice.mask, harvest.reference.kind),
+                                  options.label ? maskKernelRadius() : -1, stream, ranks);
+  stats.slabs = plan.count();
+  stats.slabCells = plan.cells;
+  stats.halo = plan.halo;
+  harvest.reference.tables.resize(static_cast<std::size_t>(plan.count()));
+  std::vector<GridBrick> bricks(static_cast<std::size_t>(plan.count()));
+  for (std::int64_t s = 0; s < plan.count(); ++s) bricks[static_cast<std::size_t>(s)] = plan.brick(s);
+  const build::Input in{geometry, bricks, o, build::GridKeys{geometry.dims}, progress};
+  window.restart();
+  harvestSlabs(in, bricks, plan, window, choice.mask, options, harvest, stats, timings);
   auto mark = Clock::now();
   if (harvest.edges.size() > std::numeric_limits<std::uint32_t>::max())
     throw Error("too many isovertices for one model");
-  sortEdges(harvest);
+  build::sortEdges(harvest);
   if (!std::is_sorted(harvest.cells.begin(), harvest.cells.end()))  // slabs in z order give key order
     std::stable_sort(harvest.cells.begin(), harvest.cells.end());
   timings.isovertices += secondsSince(mark);

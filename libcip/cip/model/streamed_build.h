@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "cip/model/model_builder.h"
 
@@ -26,6 +27,15 @@ struct StreamOptions {
   std::size_t slabBytes = std::size_t(64) << 20;
 };
 
+/// What one process of a streamed build read (docs/mpi.md): with BuildOptions::collective of N ranks, rank r
+/// builds the cell layers of its rankShare along z and reads only the slices they and their halo need.
+struct RankSlices {
+  std::int64_t cellBegin = 0, cellEnd = 0;    ///< the cell layers along z it built: [cellBegin, cellEnd)
+  std::int64_t slabs = 0;                     ///< its slabs in the building pass
+  std::int64_t firstSlice = 0, endSlice = 0;  ///< every slice it read lies in [firstSlice, endSlice)
+  std::int64_t slicesRead = 0;                ///< slices it read, over all passes
+};
+
 /// How a streamed build went (for --stats-json).
 struct StreamStats {
   std::int64_t slabs = 0;       ///< slabs per pass over the volume
@@ -34,6 +44,8 @@ struct StreamStats {
   int passes = 0;               ///< passes over the volume: 2 when a global choice needs a first one
   std::size_t windowBytes = 0;  ///< samples held at once: the slab and halo, and the mask's field of it
   double readSeconds = 0;       ///< time spent in the slice source
+  /// What each rank read, in rank order (one entry without a collective); the fields above are this rank's.
+  std::vector<RankSlices> ranks;
 };
 
 /// Why `options` cannot be built slab by slab (exact normals need an analytic field; the paper's interior
@@ -41,6 +53,9 @@ struct StreamStats {
 std::string whyNotStreamed(const BuildOptions& options);
 
 /// buildModel(grid, options) of the volume of `geometry` whose samples `read` gives, one slab at a time.
+/// With options.collective of more than one rank, every rank calls it with the same arguments but its own
+/// `read`, which is asked only for the slices of the rank's share of the cell layers and their halo; the
+/// ranks exchange what their slabs left and each ends with the model one process builds, bit for bit.
 /// Throws as buildModel does, cip::Error for options whyNotStreamed rejects, and whatever `read` throws.
 Model buildModelStreamed(const GridGeometry& geometry, const SliceSource& read, const BuildOptions& options,
                          const std::string& source, const StreamOptions& stream = {},

@@ -130,6 +130,30 @@ void PointHermiteTable::compact() {
   compact_ = true;
 }
 
+void PointHermiteTable::appendTo(std::vector<std::uint8_t>& out) const {
+  appendBytes(out, dims_.data(), dims_.size());
+  const std::uint8_t compact = compact_;
+  appendBytes(out, &compact, 1);
+  appendVector(out, present_);
+  appendVector(out, words_);
+  appendVector(out, before_);
+  appendVector(out, data_);
+}
+
+PointHermiteTable PointHermiteTable::readFrom(ByteReader& in) {
+  PointHermiteTable t;
+  in.read(t.dims_.data(), t.dims_.size());
+  t.compact_ = in.value<std::uint8_t>() != 0;
+  t.present_ = in.vector<std::uint64_t>();
+  t.words_ = in.vector<std::uint64_t>();
+  t.before_ = in.vector<std::uint32_t>();
+  t.data_ = in.vector<PointHermite>();
+  const std::size_t words = t.compact_ ? t.words_.size() : t.present_.size();
+  if (t.present_.size() != words || t.before_.size() != words)
+    throw Error("a reference table's bytes do not agree with themselves");
+  return t;
+}
+
 std::ptrdiff_t PointHermiteTable::wordOf(std::int64_t index) const {
   if (index < 0) return -1;
   const auto w = static_cast<std::uint64_t>(index >> 6);

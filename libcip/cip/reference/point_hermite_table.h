@@ -40,6 +40,11 @@ class PointHermiteTable {
   void setReference(const std::array<std::int64_t, 3>& cell, double isovalue, CellReference& ref) const;
   std::size_t size() const { return data_.size(); }
 
+  /// The table as bytes (appendVector, collective.h), for the ranks of a streamed build to exchange their
+  /// slabs' tables, and the table back from them (throws cip::Error for bytes that end early).
+  void appendTo(std::vector<std::uint8_t>& out) const;
+  static PointHermiteTable readFrom(ByteReader& in);
+
  private:
   bool holds(std::int64_t index) const;
   std::size_t rank(std::int64_t index) const;  ///< of a point held

@@ -9,7 +9,8 @@ void SamplingEstimator::addCell(const DenseGrid& grid, const std::array<std::int
   const auto& dims = grid.geometry.dims;
   const std::int64_t stride[3] = {1, dims[0], dims[0] * dims[1]};
   const double* p = &grid.values[static_cast<std::size_t>(grid.index(cell[0], cell[1], cell[2]))];
-  bool measured = false;
+  SamplingTerm terms[3];
+  std::size_t count = 0;
   for (int a = 0; a < 3; ++a) {
     if (cell[a] < 3 || cell[a] + 3 >= dims[a]) continue;
     const std::int64_t s = stride[a];
@@ -18,12 +19,24 @@ void SamplingEstimator::addCell(const DenseGrid& grid, const std::array<std::int
     const double d4 = m2 - 4 * m1 + 6 * c - 4 * p1 + p2;
     const double d6 = m3 - 6 * m2 + 15 * m1 - 20 * c + 15 * p1 - 6 * p2 + p3;
     if (!std::isfinite(d4) || !std::isfinite(d6)) continue;
-    fourth_ += d4 * d4;
-    sixth_ += d6 * d6;
-    samples_ += c * c;
-    measured = true;
+    terms[count++] = SamplingTerm{d4 * d4, d6 * d6, c * c};
   }
-  if (measured) ++cells_;
+  if (count == 0) return;
+  if (record_) {
+    record_->insert(record_->end(), terms, terms + count);
+    ++cells_;
+  } else {
+    addTerms(terms, count, 1);
+  }
+}
+
+void SamplingEstimator::addTerms(const SamplingTerm* terms, std::size_t count, std::int64_t cells) {
+  for (std::size_t n = 0; n < count; ++n) {
+    fourth_ += terms[n].fourth;
+    sixth_ += terms[n].sixth;
+    samples_ += terms[n].sample;
+  }
+  cells_ += cells;
 }
 
 SamplingEstimate SamplingEstimator::estimate() const {

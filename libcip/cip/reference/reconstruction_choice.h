@@ -8,7 +8,9 @@
 /// from kCentral8Wavelength samples up. docs/method.md derives the estimate and measures it per volume.
 #pragma once
 #include <array>
+#include <cstddef>
 #include <cstdint>
+#include <vector>
 
 #include "cip/reference/tricubic_reference.h"
 #include "cip/volume/dense_grid.h"
@@ -30,15 +32,32 @@ struct SamplingEstimate {
 /// not all finite is left out there. Fourth differences below 1e-12 of the samples' size (a cubic, to
 /// rounding) count as none: such data have no finest scale, and get an infinite wavelength. The sums, and so
 /// the result, depend on the order of the cells only through rounding; buildModel adds them in grid order.
+///
+/// A build split between processes (docs/mpi.md) records the terms of its cells instead (the estimator made
+/// with a record), and every process adds all processes' records in grid order (addTerms): the same sums,
+/// to the bit, as one process adding the cells.
+struct SamplingTerm {
+  double fourth = 0, sixth = 0, sample = 0;  ///< squares of one axis's differences and centre sample
+};
+
 class SamplingEstimator {
  public:
+  SamplingEstimator() = default;
+  /// An estimator that appends each measured axis's terms to `*record` (in the order it adds them) and
+  /// counts the measured cells, rather than summing them.
+  explicit SamplingEstimator(std::vector<SamplingTerm>* record) : record_(record) {}
   /// `cell`: the crossed cell's lowest point, in `grid`'s own indices (a brick's grid for sparse volumes).
   void addCell(const DenseGrid& grid, const std::array<std::int64_t, 3>& cell);
+  /// Adds recorded terms, in their order, and `cells` measured cells.
+  void addTerms(const SamplingTerm* terms, std::size_t count, std::int64_t cells);
+  /// Crossed cells measured so far.
+  std::int64_t cells() const { return cells_; }
   SamplingEstimate estimate() const;
 
  private:
   double fourth_ = 0, sixth_ = 0, samples_ = 0;  ///< sums of squares (samples_: of the centre samples)
   std::int64_t cells_ = 0;
+  std::vector<SamplingTerm>* record_ = nullptr;
 };
 
 /// The estimate over every crossed cell of a dense grid (corners on both sides of the isovalue, all finite).
