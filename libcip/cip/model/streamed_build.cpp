@@ -282,7 +282,7 @@ Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const B
   const GlobalChoice choice =
       choose(geometry, options, planSlabs(geometry, kEstimateHalo, -1, stream, ranks), window, progress);
   stats.passes = choice.sampling ? 2 : 1;
-  BuildOptions o = choice.mask ? build::maskFieldOptions(options) : options;
+  const BuildOptions o = choice.mask ? build::maskFieldOptions(options) : options;
   BuildTimings timings;
   timings.reference = secondsSince(start);
   build::SlabHarvest harvest;
