@@ -4,9 +4,11 @@
 // on the smaller cases.
 #pragma once
 
+#include "cip/core/vector_clones.h"  // CIP_ADDRESS_SANITIZER: GCC's and Clang's ways of telling
+
 namespace cip::test {
 
-#if defined(__SANITIZE_ADDRESS__)
+#if defined(CIP_ADDRESS_SANITIZER)
 inline constexpr bool kSanitizedBuild = true;
 #else
 inline constexpr bool kSanitizedBuild = false;
