@@ -55,6 +55,7 @@ std::vector<Case> cases() {
   for (PatchMethod method : {PatchMethod::Fitted, PatchMethod::Paper}) {
     const std::string m = toString(method);
     out.push_back({"sphere-32-" + m, fieldModel("sphere", 32, method)});
+    if (test::kSanitizedBuild && method == PatchMethod::Paper) continue;  // the sphere takes the same paths
     out.push_back({"torus-32-" + m, fieldModel("torus", 32, method)});
     out.push_back({"gyroid-24-" + m, fieldModel("gyroid", 24, method)});
   }
