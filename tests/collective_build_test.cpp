@@ -364,7 +364,7 @@ TEST(CollectiveStreamedBuild, NonFiniteSamplesOnSharedPlanes) {
 TEST(CollectiveStreamedBuild, DetectedMask) {
   const double iso = makeAnalyticField("sphere")->defaultIsovalue();
   const DenseGrid grid =
-      stacked(fieldGrid("sphere", 14), 4, [&](double v, std::size_t) { return v > iso ? 1.0 : 0.0; });
+      stacked(fieldGrid("sphere", 14), 6, [&](double v, std::size_t) { return v > iso ? 1.0 : 0.0; });
   BuildOptions options;
   options.isovalue = 0.5;
   FittingStats fitting;
@@ -379,7 +379,7 @@ TEST(CollectiveStreamedBuild, DetectedMask) {
 TEST(CollectiveStreamedBuild, LabelMap) {
   const double iso = makeAnalyticField("sphere")->defaultIsovalue();
   // Labels 1 and 2 interleaved inside the balls.
-  // The label's field reaches maskReach() + kMaskBlock + maskKernelRadius() (42 here) beyond a slab's cells:
+  // The label's field reaches maskReach() + kMaskBlock + maskKernelRadius() (51 here) beyond a slab's cells:
   // many small balls, 143 slices.
   const DenseGrid grid = stacked(fieldGrid("sphere", 10), 13, [&](double v, std::size_t n) {
     return v > iso ? (n % 3 == 0 && v > iso + 0.2 ? 2.0 : 1.0) : 0.0;

@@ -96,7 +96,7 @@ def check_own_slabs(path, n, what):
     if not mpi.get("reads_own_slabs") or len(layers) != n or len(ranges) != n or len(read) != n:
         return [f"{what}: stats mpi {mpi} do not say that each rank read its own slabs"]
     slices = layers[-1][1] + 1  # the volume's slices: one more than its cell layers
-    halo = 16  # more than any reference's stencil reaches (brickApron, maskReach, Auto's estimate)
+    halo = 16  # more than these inputs' references reach (brickApron, Auto's estimate; none is a mask: maskReach is 24)
     failures = []
     for r in range(n):
         (c0, c1), (z0, z1) = layers[r], ranges[r]

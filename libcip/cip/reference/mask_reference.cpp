@@ -1,10 +1,12 @@
 #include "cip/reference/mask_reference.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <vector>
 
@@ -27,15 +29,29 @@ struct GaussianTaps {
   }
 };
 
-/// The two Gaussians of K and its weight a (mask_reference.h).
+/// The two Gaussians of K_s and its weight a (mask_reference.h), and the factor that turns K_s * (chi_T -
+/// chi_C) into a signed distance near a plane: s / (sqrt(2/pi) (a - (a - 1)/sqrt2)), its slope's inverse.
 struct Kernel {
-  GaussianTaps narrow{kMaskSigma}, wide{kMaskSigma * std::sqrt(2.0)};
+  GaussianTaps narrow, wide;
   double a = std::sqrt(2.0) / (std::sqrt(2.0) - 1);
-  int radius() const { return std::max(narrow.radius, wide.radius); }
+  double toVoxels;
+  explicit Kernel(double s)
+      : narrow(s),
+        wide(s * std::sqrt(2.0)),
+        toVoxels(s / (std::sqrt(2.0 / 3.14159265358979323846) * (a - (a - 1) / std::sqrt(2.0)))) {}
 };
 
-const Kernel& kernel() {
-  static const Kernel k;
+constexpr int kScales = 3;
+
+/// The kernels of kMaskScales, largest first, and the Gaussian of the scale mean.
+struct Kernels {
+  Kernel scale[kScales] = {Kernel(kMaskScales[0]), Kernel(kMaskScales[1]), Kernel(kMaskScales[2])};
+  GaussianTaps weight{kMaskWeightSigma};
+  int radius() const { return scale[0].wide.radius; }
+};
+
+const Kernels& kernels() {
+  static const Kernels k;
   return k;
 }
 
@@ -47,40 +63,46 @@ int stencilReach() {
 using Dims = std::array<std::int64_t, 3>;
 
 /// One block's work space: the region (the block grown by the kernel's radius, clamped into the grid) and
-/// the passes' buffers, reused from block to block by one thread.
+/// the passes' buffers, reused from block to block by one thread (the second pass's buffers are larger than
+/// the allocator keeps for reuse: allocated per block, each would be faulted in again).
 struct BlockScratch {
-  std::vector<std::int64_t> cls;  ///< the region's classes
-  std::vector<double> in, x, xy;  ///< indicator, after the x pass, after x and y
-  std::vector<double> sum[2];     ///< the block's result per Gaussian
+  std::vector<std::int64_t> cls;                      ///< the region's classes
+  std::vector<double> in, x, xy;                      ///< indicator, after the x pass, after x and y
+  std::vector<double> sum[2];                         ///< the block's result per Gaussian
+  std::vector<double> gap[2], next, mean[2], weight;  ///< the second pass's (blendBlock)
 };
 
 /// G * in over the block: `in` covers the region (dims r), the block starts at `o` in it (dims b), and the
-/// region reaches the kernel's radius beyond the block on every side (classBlock pads it).
+/// region reaches at least the kernel's radius beyond the block on every side (classBlock pads it by the
+/// largest kernel's radius; only the rows and slices within this kernel's radius are read).
 void separableBlur(const GaussianTaps& g, const Dims& r, const Dims& o, const Dims& b, BlockScratch& s,
                    std::vector<double>& out) {
   const int R = g.radius;
   const double* w = g.weights.data() + R;
+  const std::int64_t j0 = o[1] - R, j1 = o[1] + b[1] + R, k0 = o[2] - R, k1 = o[2] + b[2] + R;
   // x: region rows, block columns. A row of one value (most, away from the surface) stays that value.
   s.x.resize(static_cast<std::size_t>(b[0] * r[1] * r[2]));
-  for (std::int64_t k = 0; k < r[2]; ++k)
-    for (std::int64_t j = 0; j < r[1]; ++j) {
+  for (std::int64_t k = k0; k < k1; ++k)
+    for (std::int64_t j = j0; j < j1; ++j) {
       const double* row = &s.in[static_cast<std::size_t>(r[0] * (j + r[1] * k))];
       double* dst = &s.x[static_cast<std::size_t>(b[0] * (j + r[1] * k))];
-      if (std::all_of(row, row + r[0], [&](double v) { return v == row[0]; })) {
-        std::fill(dst, dst + b[0], row[0]);
+      const double* first = row + o[0] - R;
+      if (std::all_of(first, row + o[0] + b[0] + R, [&](double v) { return v == *first; })) {
+        std::fill(dst, dst + b[0], *first);
         continue;
       }
-      std::fill(dst, dst + b[0], 0.0);
-      for (int t = -R; t <= R; ++t) {
+      for (std::int64_t i = 0; i < b[0]; ++i) dst[i] = w[-R] * first[i];
+      for (int t = -R + 1; t <= R; ++t) {
         const double* src = row + o[0] + t;
         for (std::int64_t i = 0; i < b[0]; ++i) dst[i] += w[t] * src[i];
       }
     }
   // y: block columns and rows, region slices.
-  s.xy.assign(static_cast<std::size_t>(b[0] * b[1] * r[2]), 0.0);
-  for (std::int64_t k = 0; k < r[2]; ++k)
+  s.xy.resize(static_cast<std::size_t>(b[0] * b[1] * r[2]));
+  for (std::int64_t k = k0; k < k1; ++k)
     for (std::int64_t j = 0; j < b[1]; ++j) {
       double* dst = &s.xy[static_cast<std::size_t>(b[0] * (j + b[1] * k))];
+      std::fill(dst, dst + b[0], 0.0);
       for (int t = -R; t <= R; ++t) {
         const double* src = &s.x[static_cast<std::size_t>(b[0] * (o[1] + j + t + r[1] * k))];
         for (std::int64_t i = 0; i < b[0]; ++i) dst[i] += w[t] * src[i];
@@ -96,28 +118,40 @@ void separableBlur(const GaussianTaps& g, const Dims& r, const Dims& o, const Di
     }
 }
 
-/// K * in over the block into `out` (mask_reference.h).
-void smoothBlock(const Dims& r, const Dims& o, const Dims& b, BlockScratch& s, std::vector<double>& out) {
-  const Kernel& k = kernel();
+/// K_s * in over the block into `out`, in voxels (Kernel::toVoxels).
+void smoothBlock(const Kernel& k, const Dims& r, const Dims& o, const Dims& b, BlockScratch& s,
+                 std::vector<double>& out) {
   separableBlur(k.narrow, r, o, b, s, s.sum[0]);
   separableBlur(k.wide, r, o, b, s, s.sum[1]);
   out.resize(s.sum[0].size());
-  for (std::size_t n = 0; n < out.size(); ++n) out[n] = k.a * s.sum[0][n] - (k.a - 1) * s.sum[1][n];
+  for (std::size_t n = 0; n < out.size(); ++n)
+    out[n] = (k.a * s.sum[0][n] - (k.a - 1) * s.sum[1][n]) * k.toVoxels;
 }
 
-/// The field of class `target` in one block: `lo` its first point, `b` its size.
+/// What the first pass keeps of a block whose field is needed: the target's field at each scale before
+/// clamping (in voxels), the points next to a surface and how far the scales disagree there.
+struct BandBlock {
+  Dims lo{}, b{};
+  std::vector<double> field[kScales];  ///< the target's field at each scale
+  std::vector<double> gap[2];          ///< at the points next to a surface: |F_s - F_s'| of scales 0-1, 1-2
+  std::vector<std::uint8_t> next;      ///< the points next to a surface between two classes
+};
+
+/// The first pass over one block: `lo` its first point, `b` its size. Returns false (and fills nothing) when
+/// no two classes lie within reach of its points: its field is then +1 or -1 (`constant`).
 template <class ClassOf>
-void classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t target, const Dims& lo,
-                const Dims& b, BlockScratch& s, std::vector<double>& out) {
+bool classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t target, BlockScratch& s,
+                BandBlock& out, double& constant) {
   const Dims& dims = grid.geometry.dims;
-  const int R = kernel().radius();
+  const Dims& lo = out.lo;
+  const Dims& b = out.b;
+  const int R = kernels().radius();
   auto clampTo = [](std::int64_t v, std::int64_t n) { return std::min(std::max<std::int64_t>(v, 0), n - 1); };
   auto classAt = [&](std::int64_t i, std::int64_t j, std::int64_t k) {  // block-local, clamped into the grid
     return classOf(
         grid.at(clampTo(lo[0] + i, dims[0]), clampTo(lo[1] + j, dims[1]), clampTo(lo[2] + k, dims[2])));
   };
   const std::size_t blockPoints = static_cast<std::size_t>(b[0] * b[1] * b[2]);
-  out.resize(blockPoints);
   // The classes within reach of the block's points decide whether its field is needed.
   const std::int64_t reach = stencilReach();
   bool mixed = false;
@@ -130,8 +164,8 @@ void classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
           break;
         }
   if (!mixed) {
-    std::fill(out.begin(), out.end(), first == target ? 1.0 : -1.0);
-    return;
+    constant = first == target ? 1.0 : -1.0;
+    return false;
   }
   // The region: the block and R points around it, beyond the grid the nearest grid point's class.
   Dims r, o;
@@ -147,41 +181,196 @@ void classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
       std::int64_t* dst = &s.cls[static_cast<std::size_t>(r[0] * (j + r[1] * k))];
       for (std::int64_t i = 0; i < r[0]; ++i) dst[i] = classOf(row[clampTo(lo[0] - R + i, dims[0])]);
     }
-  auto regionClass = [&](std::int64_t i, std::int64_t j, std::int64_t k) {
-    return s.cls[static_cast<std::size_t>(o[0] + i + r[0] * (o[1] + j + r[1] * (o[2] + k)))];
-  };
   std::vector<std::int64_t> classes{s.cls[0]};  // in order of first appearance: few, so a linear search
   for (const std::int64_t c : s.cls)
     if (c != classes.back() && std::find(classes.begin(), classes.end(), c) == classes.end())
       classes.push_back(c);
-  const bool hasTarget = std::find(classes.begin(), classes.end(), target) != classes.end();
-  s.in.resize(s.cls.size());
-  if (hasTarget && classes.size() == 2) {
-    // f = K * (chi_T - chi_C): the other class's field is this one negated, number for number.
-    for (std::size_t n = 0; n < s.cls.size(); ++n) s.in[n] = s.cls[n] == target ? 1.0 : -1.0;
-    smoothBlock(r, o, b, s, out);
-  } else {
-    std::vector<double> g, own(blockPoints, 0.0), others(blockPoints, -HUGE_VAL);
-    for (const std::int64_t c : classes) {
-      for (std::size_t n = 0; n < s.cls.size(); ++n) s.in[n] = s.cls[n] == c ? 1.0 : 0.0;
-      smoothBlock(r, o, b, s, g);
-      if (c == target)
-        own = g;
-      else
-        for (std::size_t n = 0; n < blockPoints; ++n) others[n] = std::max(others[n], g[n]);
-    }
-    for (std::size_t n = 0; n < blockPoints; ++n) out[n] = own[n] - others[n];
-  }
-  // Every point keeps its class's side.
+  auto regionAt = [&](std::int64_t i, std::int64_t j, std::int64_t k) {  // block-local
+    return static_cast<std::size_t>(o[0] + i + r[0] * (o[1] + j + r[1] * (o[2] + k)));
+  };
+  // The points next to a surface between two classes: a neighbour along an axis, in the grid, of another
+  // class; and for each of them the classes whose surface it lies next to (its own and its neighbours').
+  out.next.assign(blockPoints, 0);
+  std::vector<std::array<std::int64_t, 7>> nearClasses;  // per point next to a surface: count, then classes
+  std::vector<std::size_t> nearPoints;
   for (std::int64_t k = 0; k < b[2]; ++k)
     for (std::int64_t j = 0; j < b[1]; ++j)
       for (std::int64_t i = 0; i < b[0]; ++i) {
-        double& v = out[static_cast<std::size_t>(i + b[0] * (j + b[1] * k))];
-        v = regionClass(i, j, k) == target ? std::max(v, kMaskMargin) : std::min(v, -kMaskMargin);
+        const std::int64_t here = s.cls[regionAt(i, j, k)];
+        const std::int64_t p[3] = {lo[0] + i, lo[1] + j, lo[2] + k};
+        std::array<std::int64_t, 7> near{};
+        for (int a = 0; a < 3; ++a)
+          for (int step : {-1, 1}) {
+            if (p[a] + step < 0 || p[a] + step >= dims[a]) continue;
+            std::int64_t q[3] = {i, j, k};
+            q[a] += step;
+            const std::int64_t c = s.cls[regionAt(q[0], q[1], q[2])];
+            if (c == here) continue;
+            if (near[0] == 0) near[++near[0]] = here;
+            if (std::find(near.begin() + 1, near.begin() + 1 + near[0], c) == near.begin() + 1 + near[0])
+              near[static_cast<std::size_t>(++near[0])] = c;
+          }
+        if (near[0] == 0) continue;
+        const std::size_t n = static_cast<std::size_t>(i + b[0] * (j + b[1] * k));
+        out.next[n] = 1;
+        nearPoints.push_back(n);
+        nearClasses.push_back(near);
+      }
+  // Each scale's field of the target and, at the points next to a surface, the largest disagreement of the
+  // scales among the fields of the classes meeting there (the same for every target: touching labels blend
+  // their scales alike and keep f_C = -f_T).
+  std::vector<double> classField[kScales];
+  for (int pair = 0; pair < 2; ++pair) out.gap[pair].assign(blockPoints, 0.0);
+  s.in.resize(s.cls.size());
+  if (classes.size() == 2) {
+    // f = K * (chi_A - chi_B), A the first class met: the other class's field is this one negated, number
+    // for number.
+    for (std::size_t n = 0; n < s.cls.size(); ++n) s.in[n] = s.cls[n] == classes[0] ? 1.0 : -1.0;
+    for (int scale = 0; scale < kScales; ++scale) {
+      smoothBlock(kernels().scale[scale], r, o, b, s, classField[scale]);
+      std::vector<double>& f = out.field[scale];
+      f = classField[scale];
+      if (target == classes[1]) {
+        for (double& v : f) v = -v;
+      } else if (target != classes[0]) {  // K * (0 - max(chi_A, chi_B)), chi_A + chi_B = 1
+        const double toVoxels = kernels().scale[scale].toVoxels;
+        for (double& v : f) v = -(toVoxels + std::abs(v)) / 2;
+      }
+    }
+    for (const std::size_t n : nearPoints)
+      for (int pair = 0; pair < 2; ++pair)
+        out.gap[pair][n] = std::abs(classField[pair][n] - classField[pair + 1][n]);
+    return true;
+  }
+  // Three or more classes: each class's smoothed indicator at each scale, and per point the two largest.
+  const std::size_t C = classes.size();
+  std::vector<std::vector<double>> g(C * kScales);
+  for (std::size_t c = 0; c < C; ++c) {
+    for (std::size_t n = 0; n < s.cls.size(); ++n) s.in[n] = s.cls[n] == classes[c] ? 1.0 : 0.0;
+    for (int scale = 0; scale < kScales; ++scale)
+      smoothBlock(kernels().scale[scale], r, o, b, s, g[c * kScales + static_cast<std::size_t>(scale)]);
+  }
+  auto fieldOf = [&](std::size_t c, int scale, std::size_t n) {  // f_c = K * chi_c - max over the others
+    double others = -HUGE_VAL;
+    for (std::size_t d = 0; d < C; ++d)
+      if (d != c) others = std::max(others, g[d * kScales + static_cast<std::size_t>(scale)][n]);
+    return g[c * kScales + static_cast<std::size_t>(scale)][n] - others;
+  };
+  const auto targetAt = std::find(classes.begin(), classes.end(), target);
+  for (int scale = 0; scale < kScales; ++scale) {
+    std::vector<double>& f = out.field[scale];
+    f.resize(blockPoints);
+    for (std::size_t n = 0; n < blockPoints; ++n) {
+      if (targetAt != classes.end()) {
+        f[n] = fieldOf(static_cast<std::size_t>(targetAt - classes.begin()), scale, n);
+      } else {
+        double others = -HUGE_VAL;
+        for (std::size_t d = 0; d < C; ++d)
+          others = std::max(others, g[d * kScales + static_cast<std::size_t>(scale)][n]);
+        f[n] = -others;
+      }
+    }
+  }
+  for (std::size_t m = 0; m < nearPoints.size(); ++m) {
+    const std::size_t n = nearPoints[m];
+    const auto& near = nearClasses[m];
+    for (std::int64_t t = 1; t <= near[0]; ++t) {
+      const auto c = static_cast<std::size_t>(
+          std::find(classes.begin(), classes.end(), near[static_cast<std::size_t>(t)]) - classes.begin());
+      for (int pair = 0; pair < 2; ++pair)
+        out.gap[pair][n] =
+            std::max(out.gap[pair][n], std::abs(fieldOf(c, pair, n) - fieldOf(c, pair + 1, n)));
+    }
+  }
+  return true;
+}
+
+/// The blocks of a grid (kMaskBlock points a side; along z starting where the larger grid's do) and the
+/// first pass's result for each.
+struct BlockGrid {
+  Dims dims{}, blocks{};
+  std::int64_t phase = 0;
+  std::vector<BandBlock> band;   ///< per block; empty fields where the block is constant
+  std::vector<double> constant;  ///< per block: +-1 where constant
+
+  std::int64_t count() const { return blocks[0] * blocks[1] * blocks[2]; }
+  /// The block holding point p, and p's index in it.
+  std::pair<std::int64_t, std::size_t> at(std::int64_t i, std::int64_t j, std::int64_t k) const {
+    const std::int64_t bz = (k + phase) / kMaskBlock;
+    const std::int64_t n = i / kMaskBlock + blocks[0] * (j / kMaskBlock + blocks[1] * bz);
+    const BandBlock& blk = band[static_cast<std::size_t>(n)];
+    return {
+        n, static_cast<std::size_t>(i - blk.lo[0] + blk.b[0] * (j - blk.lo[1] + blk.b[1] * (k - blk.lo[2])))};
+  }
+};
+
+/// The second pass over one band block: the mean over the points next to the surface, within
+/// maskWeightRadius(), of how far the scales disagree, and from it the blend of the scales; clamped so that
+/// every point keeps its class's side. `out` receives the field in the units of the largest kernel.
+template <class ClassOf>
+void blendBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t target, const BlockGrid& g,
+                const BandBlock& blk, BlockScratch& s, std::vector<double>& out) {
+  const Dims& dims = grid.geometry.dims;
+  const GaussianTaps& taps = kernels().weight;
+  const int W = taps.radius;
+  auto clampTo = [](std::int64_t v, std::int64_t n) { return std::min(std::max<std::int64_t>(v, 0), n - 1); };
+  Dims r, o;
+  for (int a = 0; a < 3; ++a) {
+    r[a] = blk.b[a] + 2 * W;
+    o[a] = W;
+  }
+  const std::size_t regionPoints = static_cast<std::size_t>(r[0] * r[1] * r[2]);
+  // The region's disagreements of the two pairs of scales at the points next to the surface, and those
+  // points.
+  std::vector<double>(&gap)[2] = s.gap;
+  std::vector<double>& next = s.next;
+  next.assign(regionPoints, 0.0);
+  gap[0].assign(regionPoints, 0.0);
+  gap[1].assign(regionPoints, 0.0);
+  for (std::int64_t k = 0; k < r[2]; ++k)
+    for (std::int64_t j = 0; j < r[1]; ++j)
+      for (std::int64_t i = 0; i < r[0]; ++i) {
+        const auto [n, at] = g.at(clampTo(blk.lo[0] - W + i, dims[0]), clampTo(blk.lo[1] - W + j, dims[1]),
+                                  clampTo(blk.lo[2] - W + k, dims[2]));
+        const BandBlock& other = g.band[static_cast<std::size_t>(n)];
+        if (other.next.empty() || !other.next[at]) continue;
+        const std::size_t m = static_cast<std::size_t>(i + r[0] * (j + r[1] * k));
+        next[m] = 1.0;
+        gap[0][m] = other.gap[0][at];
+        gap[1][m] = other.gap[1][at];
+      }
+  std::vector<double>(&mean)[2] = s.mean;
+  std::vector<double>& weight = s.weight;
+  s.in.swap(next);
+  separableBlur(taps, r, o, blk.b, s, weight);
+  s.in.swap(next);
+  for (int pair = 0; pair < 2; ++pair) {
+    s.in.swap(gap[pair]);
+    separableBlur(taps, r, o, blk.b, s, mean[pair]);
+    s.in.swap(gap[pair]);
+  }
+  const Kernel& largest = kernels().scale[0];
+  auto ramp = [](double x, const double(&range)[2]) {
+    return std::min(1.0, std::max(0.0, (x - range[0]) / (range[1] - range[0])));
+  };
+  out.resize(blk.next.size());
+  for (std::int64_t k = 0; k < blk.b[2]; ++k)
+    for (std::int64_t j = 0; j < blk.b[1]; ++j)
+      for (std::int64_t i = 0; i < blk.b[0]; ++i) {
+        const std::size_t n = static_cast<std::size_t>(i + blk.b[0] * (j + blk.b[1] * k));
+        const double norm = std::max(weight[n], 1e-3);
+        const double w1 = ramp(mean[0][n] / norm, kMaskSwitch[0]),
+                     w2 = ramp(mean[1][n] / norm, kMaskSwitch[1]);
+        const double f =
+            (1 - w1) * blk.field[0][n] + w1 * ((1 - w2) * blk.field[1][n] + w2 * blk.field[2][n]);
+        const double v = f / largest.toVoxels;
+        const bool own = classOf(grid.at(blk.lo[0] + i, blk.lo[1] + j, blk.lo[2] + k)) == target;
+        out[n] = own ? std::max(v, kMaskMargin) : std::min(v, -kMaskMargin);
       }
 }
 
-/// The field of class `target` over the grid, block by block in parallel, as samples offset + f.
+/// The field of class `target` over the grid, as samples offset + f: the first pass computes each band
+/// block's scales, the second blends them (both block by block in parallel).
 template <class ClassOf>
 DenseGrid classField(const DenseGrid& grid, const ClassOf& classOf, std::int64_t target, double offset,
                      std::int64_t firstSliceZ = 0) {
@@ -189,30 +378,46 @@ DenseGrid classField(const DenseGrid& grid, const ClassOf& classOf, std::int64_t
   out.geometry = grid.geometry;
   out.description = grid.description;
   out.allocate(grid.geometry.dims);
-  const Dims& dims = grid.geometry.dims;
-  Dims blocks;
+  BlockGrid g;
+  g.dims = grid.geometry.dims;
   // Along z the blocks start where the slices of the larger grid do (firstSliceZ): the first may be shorter.
-  const std::int64_t phase = firstSliceZ % kMaskBlock;
-  for (int a = 0; a < 3; ++a) blocks[a] = (dims[a] + (a == 2 ? phase : 0) + kMaskBlock - 1) / kMaskBlock;
-  const std::int64_t count = blocks[0] * blocks[1] * blocks[2];
+  g.phase = firstSliceZ % kMaskBlock;
+  for (int a = 0; a < 3; ++a)
+    g.blocks[a] = (g.dims[a] + (a == 2 ? g.phase : 0) + kMaskBlock - 1) / kMaskBlock;
+  const std::int64_t count = g.count();
+  g.band.resize(static_cast<std::size_t>(count));
+  g.constant.assign(static_cast<std::size_t>(count), 0.0);
+  for (std::int64_t n = 0; n < count; ++n) {
+    const Dims at{n % g.blocks[0], (n / g.blocks[0]) % g.blocks[1], n / (g.blocks[0] * g.blocks[1])};
+    BandBlock& blk = g.band[static_cast<std::size_t>(n)];
+    for (int a = 0; a < 3; ++a) {
+      const std::int64_t shift = a == 2 ? g.phase : 0;
+      blk.lo[a] = std::max<std::int64_t>(0, at[a] * kMaskBlock - shift);
+      blk.b[a] = std::min<std::int64_t>((at[a] + 1) * kMaskBlock - shift, g.dims[a]) - blk.lo[a];
+    }
+  }
+  tbb::enumerable_thread_specific<BlockScratch> scratches;  // one per thread, reused over both passes
+  tbb::parallel_for(tbb::blocked_range<std::int64_t>(0, count, 1),
+                    [&](const tbb::blocked_range<std::int64_t>& range) {
+                      BlockScratch& scratch = scratches.local();
+                      for (std::int64_t n = range.begin(); n != range.end(); ++n)
+                        classBlock(grid, classOf, target, scratch, g.band[static_cast<std::size_t>(n)],
+                                   g.constant[static_cast<std::size_t>(n)]);
+                    });
   tbb::parallel_for(
       tbb::blocked_range<std::int64_t>(0, count, 1), [&](const tbb::blocked_range<std::int64_t>& range) {
-        BlockScratch scratch;
+        BlockScratch& scratch = scratches.local();
         std::vector<double> field;
         for (std::int64_t n = range.begin(); n != range.end(); ++n) {
-          const Dims at{n % blocks[0], (n / blocks[0]) % blocks[1], n / (blocks[0] * blocks[1])};
-          Dims lo, b;
-          for (int a = 0; a < 3; ++a) {
-            const std::int64_t shift = a == 2 ? phase : 0;
-            lo[a] = std::max<std::int64_t>(0, at[a] * kMaskBlock - shift);
-            b[a] = std::min<std::int64_t>((at[a] + 1) * kMaskBlock - shift, dims[a]) - lo[a];
-          }
-          classBlock(grid, classOf, target, lo, b, scratch, field);
-          for (std::int64_t k = 0; k < b[2]; ++k)
-            for (std::int64_t j = 0; j < b[1]; ++j)
-              for (std::int64_t i = 0; i < b[0]; ++i)
-                out.at(lo[0] + i, lo[1] + j, lo[2] + k) =
-                    offset + field[static_cast<std::size_t>(i + b[0] * (j + b[1] * k))];
+          const BandBlock& blk = g.band[static_cast<std::size_t>(n)];
+          const bool band = !blk.next.empty();
+          if (band) blendBlock(grid, classOf, target, g, blk, scratch, field);
+          for (std::int64_t k = 0; k < blk.b[2]; ++k)
+            for (std::int64_t j = 0; j < blk.b[1]; ++j)
+              for (std::int64_t i = 0; i < blk.b[0]; ++i)
+                out.at(blk.lo[0] + i, blk.lo[1] + j, blk.lo[2] + k) =
+                    offset + (band ? field[static_cast<std::size_t>(i + blk.b[0] * (j + blk.b[1] * k))]
+                                   : g.constant[static_cast<std::size_t>(n)]);
         }
       });
   return out;
@@ -250,11 +455,15 @@ struct TwoValuedScan {
 }  // namespace
 
 int maskKernelRadius() {
-  return kernel().radius();
+  return kernels().radius();
+}
+
+int maskWeightRadius() {
+  return kernels().weight.radius;
 }
 
 int maskReach() {
-  return kernel().radius() + referenceReach(Reconstruction::Central8);
+  return kernels().radius() + kernels().weight.radius + referenceReach(Reconstruction::Central8);
 }
 
 TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue) {

@@ -4,16 +4,25 @@
 /// the inside and outside voxel centres, without the voxels' terraces.
 ///
 /// Interpolating a mask as it is reproduces its terraces. Here each class of voxels (inside and outside, or
-/// each label) gets its indicator smoothed with the kernel K = a G_s - (a - 1) G_{s sqrt 2} (G_s the Gaussian
-/// of standard deviation s voxels, a = sqrt2 / (sqrt2 - 1)), and the field of class T is
-/// f_T = K * chi_T - max over the other classes C of K * chi_C. A Gaussian alone moves the level set of a
+/// each label) gets its indicator smoothed with the kernel K_s = a G_s - (a - 1) G_{s sqrt 2} (G_s the
+/// Gaussian of standard deviation s voxels, a = sqrt2 / (sqrt2 - 1)), and the field of class T at scale s is
+/// f_T = K_s * chi_T - max over the other classes C of K_s * chi_C. A Gaussian alone moves the level set of a
 /// smoothed indicator inwards by s^2/2 times the mean curvature sum (the MBO scheme's curvature motion); that
-/// shift comes from the second moment of the kernel's central slice, which K cancels, so spheres keep their
-/// radius to O(s^4 / R^3). Where the smoothing would put a voxel on the wrong side (thin plates, sharp
-/// corners), the field is clamped to +-kMaskMargin on the voxel's own side: every grid point keeps its sign,
-/// so the crossed cells, their configurations and the topology are the mask's. Touching classes share their
-/// interface: where T and C are the two largest smoothed indicators, f_C = -f_T exactly (the same numbers,
-/// negated). docs/method.md ("Masks and label maps") measures it against VTK's windowed sinc.
+/// shift comes from the second moment of the kernel's central slice, which K_s cancels, so spheres keep their
+/// radius to O(s^4 / R^3).
+///
+/// Scale: the largest scale (2.5 voxels) smooths the terraces best but bends parts whose radius of curvature
+/// is a few voxels (tips, thin tubes), where a smaller one follows the shape better. The field is computed at
+/// the scales kMaskScales, each divided by its slope across a plane so that all are signed distances near the
+/// surface, and where two of them disagree at the points next to the surface (averaged with a Gaussian of
+/// kMaskWeightSigma over those points), the smaller scale takes over: by how much the larger one moved the
+/// surface is the measure of whether it was too large there.
+///
+/// Where the smoothing would put a voxel on the wrong side (thin plates, sharp corners), the field is clamped
+/// to +-kMaskMargin on the voxel's own side: every grid point keeps its sign, so the crossed cells, their
+/// configurations and the topology are the mask's. Touching classes share their interface: where T and C are
+/// the two largest smoothed indicators, f_C = -f_T exactly (the same numbers, negated).
+/// docs/method.md ("Masks and label maps") measures it against VTK's windowed sinc.
 ///
 /// Narrow band: the field is computed in blocks of kMaskBlock^3 points only where the block, grown by
 /// maskReach(), holds two classes; elsewhere it is +-1. Blocks run in parallel (TBB); the field does not
@@ -26,19 +35,33 @@
 
 namespace cip {
 
-/// Standard deviation (voxels) of the smaller Gaussian of the smoothing kernel.
+/// Standard deviation (voxels) of the smaller Gaussian of the largest kernel: the scale of smooth parts.
 constexpr double kMaskSigma = 2.5;
+/// The kernels' scales, largest first: 2.5 where the shape allows, 2.0 and 1.5 where it bends faster.
+constexpr double kMaskScales[3] = {kMaskSigma, 2.0, 1.5};
+/// Where the mean over the points next to the surface of |F_2.5 - F_2.0| (voxels) rises from the first to
+/// the second value, 2.0 and smaller takes over from 2.5; of |F_2.0 - F_1.5|, 1.5 from 2.0. On masks of
+/// spheres of radius 10-40 the medians of these means are 0.010-0.013 and 0.019-0.023 voxel (the terraces'
+/// noise); on a torus of tube radius 4, 0.047 and 0.044; on an ellipsoid 12 x 8 x 5, 0.082 and 0.051.
+constexpr double kMaskSwitch[2][2] = {{0.02, 0.045}, {0.03, 0.06}};
+/// Standard deviation (voxels) of the mean that decides the scale.
+constexpr double kMaskWeightSigma = 3.0;
 /// The least |f| at a grid point: a voxel whose smoothed value would be nearer the other side is clamped to
-/// this on its own side (f rises by about 0.27 per voxel across a plane, so 0.01 is 0.04 voxel).
+/// this on its own side (f, in the units of the largest kernel, rises by about 0.54 per voxel across a plane,
+/// so 0.01 is 0.02 voxel).
 constexpr double kMaskMargin = 0.01;
 /// Points per axis of the blocks the field is computed in.
 constexpr int kMaskBlock = 16;
 
-/// Points around a cell that the field of the cell's corners depends on (the kernel's radius) plus the
-/// reach of the Central8 derivatives taken from it: the apron bricks of sparse volumes need.
+/// Points around a cell that the field of the cell's corners depends on (the largest kernel's radius and the
+/// scale mean's) plus the reach of the Central8 derivatives taken from it: the apron bricks of sparse volumes
+/// need.
 int maskReach();
-/// The radius of the smoothing kernel in grid points.
+/// The radius of the largest smoothing kernel in grid points.
 int maskKernelRadius();
+/// The radius in grid points of the mean that decides the scale: a point's field depends on the kernels'
+/// fields this far from it.
+int maskWeightRadius();
 
 /// Whether the samples next to the isosurface take two values only: `below` on the non-positive side
 /// (value <= isovalue) and `above` on the positive side, at every grid point with a neighbour along an axis
@@ -60,7 +83,8 @@ DenseGrid smoothMask(const DenseGrid& grid, double isovalue);
 /// With three or more classes the field of a block depends on the classes met within the kernel's radius of
 /// it, so it depends on where blocks start: `firstSliceZ` is the z index of the grid's first slice in a
 /// larger grid that it is a slab of, and blocks start along z where they start in that grid (a slab holding
-/// the blocks of its points and their kernel's radius gives the larger grid's field there).
+/// the blocks within maskWeightRadius() of its points and the kernel's radius around them gives the larger
+/// grid's field there).
 DenseGrid smoothClass(const DenseGrid& grid, const std::function<std::int64_t(double)>& classOf,
                       std::int64_t target, std::int64_t firstSliceZ = 0);
 
