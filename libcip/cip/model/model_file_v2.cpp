@@ -1328,7 +1328,12 @@ void codeChunkItems(const Model& m, const Layout& L, const ModelFileV2Options& q
       if (!(t >= 0 && t <= 1))
         throw Error(name + ": the model cannot be written in format 2: a vertex is not on its grid edge");
     }
-    ch.tCode[v] = static_cast<std::uint16_t>(std::clamp<std::int64_t>(roundHalfAway(t * tMax), 0, tMax));
+    std::int64_t code = std::clamp<std::int64_t>(roundHalfAway(t * tMax), 0, tMax);
+    // A crossing strictly inside its edge stays off the grid points: rounded onto one, its corner plane would
+    // pass through a corner of the open faces there and the patch could dip through them (a hole).
+    if (t > 0 && code == 0) code = 1;
+    if (t < 1 && code == tMax) code = tMax - 1;
+    ch.tCode[v] = static_cast<std::uint16_t>(code);
     ch.streams[kPositionsLo].push_back(static_cast<std::uint8_t>(ch.tCode[v] & 0xFF));
     if (q.positionBits > 8) ch.streams[kPositionsHi].push_back(static_cast<std::uint8_t>(ch.tCode[v] >> 8));
   }
