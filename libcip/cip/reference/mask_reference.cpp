@@ -137,6 +137,121 @@ struct BandBlock {
   std::vector<std::uint8_t> next;      ///< the points next to a surface between two classes
 };
 
+/// The points of a block next to a surface between two classes (a neighbour along an axis, in the grid, of
+/// another class), and for each the classes whose surface it lies next to: its own and its neighbours'.
+struct SurfacePoints {
+  std::vector<std::size_t> points;                   ///< block-local indices
+  std::vector<std::array<std::int64_t, 7>> classes;  ///< per point: their count, then the classes
+};
+
+/// SurfacePoints of the block at `lo` (size b) whose region (dims r, the block at o in it) has classes `cls`;
+/// `next` receives 1 at those points.
+SurfacePoints surfacePoints(const Dims& dims, const Dims& lo, const Dims& b, const Dims& r, const Dims& o,
+                            const std::vector<std::int64_t>& cls, std::vector<std::uint8_t>& next) {
+  auto regionAt = [&](std::int64_t i, std::int64_t j, std::int64_t k) {  // block-local
+    return static_cast<std::size_t>(o[0] + i + r[0] * (o[1] + j + r[1] * (o[2] + k)));
+  };
+  SurfacePoints out;
+  next.assign(static_cast<std::size_t>(b[0] * b[1] * b[2]), 0);
+  for (std::int64_t k = 0; k < b[2]; ++k)
+    for (std::int64_t j = 0; j < b[1]; ++j)
+      for (std::int64_t i = 0; i < b[0]; ++i) {
+        const std::int64_t here = cls[regionAt(i, j, k)];
+        const std::int64_t p[3] = {lo[0] + i, lo[1] + j, lo[2] + k};
+        std::array<std::int64_t, 7> near{};
+        for (int a = 0; a < 3; ++a)
+          for (int step : {-1, 1}) {
+            if (p[a] + step < 0 || p[a] + step >= dims[a]) continue;
+            std::int64_t q[3] = {i, j, k};
+            q[a] += step;
+            const std::int64_t c = cls[regionAt(q[0], q[1], q[2])];
+            if (c == here) continue;
+            if (near[0] == 0) near[++near[0]] = here;
+            if (std::find(near.begin() + 1, near.begin() + 1 + near[0], c) == near.begin() + 1 + near[0])
+              near[static_cast<std::size_t>(++near[0])] = c;
+          }
+        if (near[0] == 0) continue;
+        const std::size_t n = static_cast<std::size_t>(i + b[0] * (j + b[1] * k));
+        next[n] = 1;
+        out.points.push_back(n);
+        out.classes.push_back(near);
+      }
+  return out;
+}
+
+// Both of the following fill each scale's field of the target and, at the points next to a surface, the
+// largest disagreement of the scales among the fields of the classes meeting there: the same for every
+// target, so touching labels blend their scales alike and keep f_C = -f_T. `s.cls` holds the region's
+// classes.
+
+/// A region of two classes: f = K * (chi_A - chi_B), A the first class met; the other class's field is this
+/// one negated, number for number.
+void twoClassFields(std::int64_t target, const std::vector<std::int64_t>& classes, const Dims& r,
+                    const Dims& o, const Dims& b, BlockScratch& s, const SurfacePoints& surface,
+                    BandBlock& out) {
+  std::vector<double> classField[kScales];
+  for (std::size_t n = 0; n < s.cls.size(); ++n) s.in[n] = s.cls[n] == classes[0] ? 1.0 : -1.0;
+  for (int scale = 0; scale < kScales; ++scale) {
+    smoothBlock(kernels().scale[scale], r, o, b, s, classField[scale]);
+    std::vector<double>& f = out.field[scale];
+    f = classField[scale];
+    if (target == classes[1]) {
+      for (double& v : f) v = -v;
+    } else if (target != classes[0]) {  // K * (0 - max(chi_A, chi_B)), chi_A + chi_B = 1
+      const double toVoxels = kernels().scale[scale].toVoxels;
+      for (double& v : f) v = -(toVoxels + std::abs(v)) / 2;
+    }
+  }
+  for (const std::size_t n : surface.points)
+    for (int pair = 0; pair < 2; ++pair)
+      out.gap[pair][n] = std::abs(classField[pair][n] - classField[pair + 1][n]);
+}
+
+/// A region of three or more classes: each class's smoothed indicator at each scale; f_c = K * chi_c - max
+/// over the others.
+void manyClassFields(std::int64_t target, const std::vector<std::int64_t>& classes, const Dims& r,
+                     const Dims& o, const Dims& b, BlockScratch& s, const SurfacePoints& surface,
+                     BandBlock& out) {
+  const std::size_t C = classes.size(), blockPoints = static_cast<std::size_t>(b[0] * b[1] * b[2]);
+  std::vector<std::vector<double>> g(C * kScales);
+  auto smoothed = [&](std::size_t c, int scale) -> const std::vector<double>& {
+    return g[c * kScales + static_cast<std::size_t>(scale)];
+  };
+  for (std::size_t c = 0; c < C; ++c) {
+    for (std::size_t n = 0; n < s.cls.size(); ++n) s.in[n] = s.cls[n] == classes[c] ? 1.0 : 0.0;
+    for (int scale = 0; scale < kScales; ++scale)
+      smoothBlock(kernels().scale[scale], r, o, b, s, g[c * kScales + static_cast<std::size_t>(scale)]);
+  }
+  auto othersMax = [&](std::size_t c, int scale, std::size_t n) {  // c = C: over every class
+    double others = -HUGE_VAL;
+    for (std::size_t d = 0; d < C; ++d)
+      if (d != c) others = std::max(others, smoothed(d, scale)[n]);
+    return others;
+  };
+  auto fieldOf = [&](std::size_t c, int scale, std::size_t n) {
+    return smoothed(c, scale)[n] - othersMax(c, scale, n);
+  };
+  const auto t =
+      static_cast<std::size_t>(std::find(classes.begin(), classes.end(), target) - classes.begin());
+  for (int scale = 0; scale < kScales; ++scale) {
+    std::vector<double>& f = out.field[scale];
+    f.resize(blockPoints);
+    for (std::size_t n = 0; n < blockPoints; ++n)
+      f[n] = t < C ? fieldOf(t, scale, n) : -othersMax(C, scale, n);
+  }
+  for (std::size_t m = 0; m < surface.points.size(); ++m) {
+    const std::size_t n = surface.points[m];
+    const auto& near = surface.classes[m];
+    for (std::int64_t k = 1; k <= near[0]; ++k) {
+      const auto c = static_cast<std::size_t>(
+          std::find(classes.begin(), classes.end(), near[static_cast<std::size_t>(k)]) - classes.begin());
+      for (int pair = 0; pair < 2; ++pair)
+        out.gap[pair][n] =
+            std::max(out.gap[pair][n], std::abs(fieldOf(c, pair, n) - fieldOf(c, pair + 1, n)));
+    }
+  }
+}
+
 /// The first pass over one block: `lo` its first point, `b` its size. Returns false (and fills nothing) when
 /// no two classes lie within reach of its points: its field is then +1 or -1 (`constant`).
 template <class ClassOf>
@@ -185,103 +300,13 @@ bool classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
   for (const std::int64_t c : s.cls)
     if (c != classes.back() && std::find(classes.begin(), classes.end(), c) == classes.end())
       classes.push_back(c);
-  auto regionAt = [&](std::int64_t i, std::int64_t j, std::int64_t k) {  // block-local
-    return static_cast<std::size_t>(o[0] + i + r[0] * (o[1] + j + r[1] * (o[2] + k)));
-  };
-  // The points next to a surface between two classes: a neighbour along an axis, in the grid, of another
-  // class; and for each of them the classes whose surface it lies next to (its own and its neighbours').
-  out.next.assign(blockPoints, 0);
-  std::vector<std::array<std::int64_t, 7>> nearClasses;  // per point next to a surface: count, then classes
-  std::vector<std::size_t> nearPoints;
-  for (std::int64_t k = 0; k < b[2]; ++k)
-    for (std::int64_t j = 0; j < b[1]; ++j)
-      for (std::int64_t i = 0; i < b[0]; ++i) {
-        const std::int64_t here = s.cls[regionAt(i, j, k)];
-        const std::int64_t p[3] = {lo[0] + i, lo[1] + j, lo[2] + k};
-        std::array<std::int64_t, 7> near{};
-        for (int a = 0; a < 3; ++a)
-          for (int step : {-1, 1}) {
-            if (p[a] + step < 0 || p[a] + step >= dims[a]) continue;
-            std::int64_t q[3] = {i, j, k};
-            q[a] += step;
-            const std::int64_t c = s.cls[regionAt(q[0], q[1], q[2])];
-            if (c == here) continue;
-            if (near[0] == 0) near[++near[0]] = here;
-            if (std::find(near.begin() + 1, near.begin() + 1 + near[0], c) == near.begin() + 1 + near[0])
-              near[static_cast<std::size_t>(++near[0])] = c;
-          }
-        if (near[0] == 0) continue;
-        const std::size_t n = static_cast<std::size_t>(i + b[0] * (j + b[1] * k));
-        out.next[n] = 1;
-        nearPoints.push_back(n);
-        nearClasses.push_back(near);
-      }
-  // Each scale's field of the target and, at the points next to a surface, the largest disagreement of the
-  // scales among the fields of the classes meeting there (the same for every target: touching labels blend
-  // their scales alike and keep f_C = -f_T).
-  std::vector<double> classField[kScales];
+  const SurfacePoints surface = surfacePoints(dims, lo, b, r, o, s.cls, out.next);
   for (int pair = 0; pair < 2; ++pair) out.gap[pair].assign(blockPoints, 0.0);
   s.in.resize(s.cls.size());
-  if (classes.size() == 2) {
-    // f = K * (chi_A - chi_B), A the first class met: the other class's field is this one negated, number
-    // for number.
-    for (std::size_t n = 0; n < s.cls.size(); ++n) s.in[n] = s.cls[n] == classes[0] ? 1.0 : -1.0;
-    for (int scale = 0; scale < kScales; ++scale) {
-      smoothBlock(kernels().scale[scale], r, o, b, s, classField[scale]);
-      std::vector<double>& f = out.field[scale];
-      f = classField[scale];
-      if (target == classes[1]) {
-        for (double& v : f) v = -v;
-      } else if (target != classes[0]) {  // K * (0 - max(chi_A, chi_B)), chi_A + chi_B = 1
-        const double toVoxels = kernels().scale[scale].toVoxels;
-        for (double& v : f) v = -(toVoxels + std::abs(v)) / 2;
-      }
-    }
-    for (const std::size_t n : nearPoints)
-      for (int pair = 0; pair < 2; ++pair)
-        out.gap[pair][n] = std::abs(classField[pair][n] - classField[pair + 1][n]);
-    return true;
-  }
-  // Three or more classes: each class's smoothed indicator at each scale, and per point the two largest.
-  const std::size_t C = classes.size();
-  std::vector<std::vector<double>> g(C * kScales);
-  for (std::size_t c = 0; c < C; ++c) {
-    for (std::size_t n = 0; n < s.cls.size(); ++n) s.in[n] = s.cls[n] == classes[c] ? 1.0 : 0.0;
-    for (int scale = 0; scale < kScales; ++scale)
-      smoothBlock(kernels().scale[scale], r, o, b, s, g[c * kScales + static_cast<std::size_t>(scale)]);
-  }
-  auto fieldOf = [&](std::size_t c, int scale, std::size_t n) {  // f_c = K * chi_c - max over the others
-    double others = -HUGE_VAL;
-    for (std::size_t d = 0; d < C; ++d)
-      if (d != c) others = std::max(others, g[d * kScales + static_cast<std::size_t>(scale)][n]);
-    return g[c * kScales + static_cast<std::size_t>(scale)][n] - others;
-  };
-  const auto targetAt = std::find(classes.begin(), classes.end(), target);
-  for (int scale = 0; scale < kScales; ++scale) {
-    std::vector<double>& f = out.field[scale];
-    f.resize(blockPoints);
-    for (std::size_t n = 0; n < blockPoints; ++n) {
-      if (targetAt != classes.end()) {
-        f[n] = fieldOf(static_cast<std::size_t>(targetAt - classes.begin()), scale, n);
-      } else {
-        double others = -HUGE_VAL;
-        for (std::size_t d = 0; d < C; ++d)
-          others = std::max(others, g[d * kScales + static_cast<std::size_t>(scale)][n]);
-        f[n] = -others;
-      }
-    }
-  }
-  for (std::size_t m = 0; m < nearPoints.size(); ++m) {
-    const std::size_t n = nearPoints[m];
-    const auto& near = nearClasses[m];
-    for (std::int64_t t = 1; t <= near[0]; ++t) {
-      const auto c = static_cast<std::size_t>(
-          std::find(classes.begin(), classes.end(), near[static_cast<std::size_t>(t)]) - classes.begin());
-      for (int pair = 0; pair < 2; ++pair)
-        out.gap[pair][n] =
-            std::max(out.gap[pair][n], std::abs(fieldOf(c, pair, n) - fieldOf(c, pair + 1, n)));
-    }
-  }
+  if (classes.size() == 2)
+    twoClassFields(target, classes, r, o, b, s, surface, out);
+  else
+    manyClassFields(target, classes, r, o, b, s, surface, out);
   return true;
 }
 
