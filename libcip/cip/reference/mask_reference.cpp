@@ -62,6 +62,11 @@ int stencilReach() {
 
 using Dims = std::array<std::int64_t, 3>;
 
+/// Index v along an axis of n points, clamped into the grid: beyond it, the nearest grid point.
+std::int64_t clampIntoGrid(std::int64_t v, std::int64_t n) {
+  return std::min(std::max<std::int64_t>(v, 0), n - 1);
+}
+
 /// One block's work space: the region (the block grown by the kernel's radius, clamped into the grid) and
 /// the passes' buffers, reused from block to block by one thread (the second pass's buffers are larger than
 /// the allocator keeps for reuse: allocated per block, each would be faulted in again).
@@ -74,9 +79,10 @@ struct BlockScratch {
 
 /// G * in over the block: `in` covers the region (dims r), the block starts at `o` in it (dims b), and the
 /// region reaches at least the kernel's radius beyond the block on every side (classBlock pads it by the
-/// largest kernel's radius; only the rows and slices within this kernel's radius are read).
-void separableBlur(const GaussianTaps& g, const Dims& r, const Dims& o, const Dims& b, BlockScratch& s,
-                   std::vector<double>& out) {
+/// largest kernel's radius; only the rows and slices within this kernel's radius are read). `s` lends the
+/// passes' buffers.
+void separableBlur(const GaussianTaps& g, const std::vector<double>& in, const Dims& r, const Dims& o,
+                   const Dims& b, BlockScratch& s, std::vector<double>& out) {
   const int R = g.radius;
   const double* w = g.weights.data() + R;
   const std::int64_t j0 = o[1] - R, j1 = o[1] + b[1] + R, k0 = o[2] - R, k1 = o[2] + b[2] + R;
@@ -84,7 +90,7 @@ void separableBlur(const GaussianTaps& g, const Dims& r, const Dims& o, const Di
   s.x.resize(static_cast<std::size_t>(b[0] * r[1] * r[2]));
   for (std::int64_t k = k0; k < k1; ++k)
     for (std::int64_t j = j0; j < j1; ++j) {
-      const double* row = &s.in[static_cast<std::size_t>(r[0] * (j + r[1] * k))];
+      const double* row = &in[static_cast<std::size_t>(r[0] * (j + r[1] * k))];
       double* dst = &s.x[static_cast<std::size_t>(b[0] * (j + r[1] * k))];
       const double* first = row + o[0] - R;
       if (std::all_of(first, row + o[0] + b[0] + R, [&](double v) { return v == *first; })) {
@@ -118,11 +124,11 @@ void separableBlur(const GaussianTaps& g, const Dims& r, const Dims& o, const Di
     }
 }
 
-/// K_s * in over the block into `out`, in voxels (Kernel::toVoxels).
+/// K_s * s.in over the block into `out`, in voxels (Kernel::toVoxels).
 void smoothBlock(const Kernel& k, const Dims& r, const Dims& o, const Dims& b, BlockScratch& s,
                  std::vector<double>& out) {
-  separableBlur(k.narrow, r, o, b, s, s.sum[0]);
-  separableBlur(k.wide, r, o, b, s, s.sum[1]);
+  separableBlur(k.narrow, s.in, r, o, b, s, s.sum[0]);
+  separableBlur(k.wide, s.in, r, o, b, s, s.sum[1]);
   out.resize(s.sum[0].size());
   for (std::size_t n = 0; n < out.size(); ++n)
     out[n] = (k.a * s.sum[0][n] - (k.a - 1) * s.sum[1][n]) * k.toVoxels;
@@ -261,10 +267,9 @@ bool classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
   const Dims& lo = out.lo;
   const Dims& b = out.b;
   const int R = kernels().radius();
-  auto clampTo = [](std::int64_t v, std::int64_t n) { return std::min(std::max<std::int64_t>(v, 0), n - 1); };
   auto classAt = [&](std::int64_t i, std::int64_t j, std::int64_t k) {  // block-local, clamped into the grid
-    return classOf(
-        grid.at(clampTo(lo[0] + i, dims[0]), clampTo(lo[1] + j, dims[1]), clampTo(lo[2] + k, dims[2])));
+    return classOf(grid.at(clampIntoGrid(lo[0] + i, dims[0]), clampIntoGrid(lo[1] + j, dims[1]),
+                           clampIntoGrid(lo[2] + k, dims[2])));
   };
   const std::size_t blockPoints = static_cast<std::size_t>(b[0] * b[1] * b[2]);
   // The classes within reach of the block's points decide whether its field is needed.
@@ -292,9 +297,9 @@ bool classBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
   for (std::int64_t k = 0; k < r[2]; ++k)
     for (std::int64_t j = 0; j < r[1]; ++j) {
       const double* row = &grid.values[static_cast<std::size_t>(
-          grid.index(0, clampTo(lo[1] - R + j, dims[1]), clampTo(lo[2] - R + k, dims[2])))];
+          grid.index(0, clampIntoGrid(lo[1] - R + j, dims[1]), clampIntoGrid(lo[2] - R + k, dims[2])))];
       std::int64_t* dst = &s.cls[static_cast<std::size_t>(r[0] * (j + r[1] * k))];
-      for (std::int64_t i = 0; i < r[0]; ++i) dst[i] = classOf(row[clampTo(lo[0] - R + i, dims[0])]);
+      for (std::int64_t i = 0; i < r[0]; ++i) dst[i] = classOf(row[clampIntoGrid(lo[0] - R + i, dims[0])]);
     }
   std::vector<std::int64_t> classes{s.cls[0]};  // in order of first appearance: few, so a linear search
   for (const std::int64_t c : s.cls)
@@ -338,7 +343,6 @@ void blendBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
   const Dims& dims = grid.geometry.dims;
   const GaussianTaps& taps = kernels().weight;
   const int W = taps.radius;
-  auto clampTo = [](std::int64_t v, std::int64_t n) { return std::min(std::max<std::int64_t>(v, 0), n - 1); };
   Dims r, o;
   for (int a = 0; a < 3; ++a) {
     r[a] = blk.b[a] + 2 * W;
@@ -355,8 +359,9 @@ void blendBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
   for (std::int64_t k = 0; k < r[2]; ++k)
     for (std::int64_t j = 0; j < r[1]; ++j)
       for (std::int64_t i = 0; i < r[0]; ++i) {
-        const auto [n, at] = g.at(clampTo(blk.lo[0] - W + i, dims[0]), clampTo(blk.lo[1] - W + j, dims[1]),
-                                  clampTo(blk.lo[2] - W + k, dims[2]));
+        const auto [n, at] =
+            g.at(clampIntoGrid(blk.lo[0] - W + i, dims[0]), clampIntoGrid(blk.lo[1] - W + j, dims[1]),
+                 clampIntoGrid(blk.lo[2] - W + k, dims[2]));
         const BandBlock& other = g.band[static_cast<std::size_t>(n)];
         if (other.next.empty() || !other.next[at]) continue;
         const std::size_t m = static_cast<std::size_t>(i + r[0] * (j + r[1] * k));
@@ -366,14 +371,8 @@ void blendBlock(const DenseGrid& grid, const ClassOf& classOf, std::int64_t targ
       }
   std::vector<double>(&mean)[2] = s.mean;
   std::vector<double>& weight = s.weight;
-  s.in.swap(next);
-  separableBlur(taps, r, o, blk.b, s, weight);
-  s.in.swap(next);
-  for (int pair = 0; pair < 2; ++pair) {
-    s.in.swap(gap[pair]);
-    separableBlur(taps, r, o, blk.b, s, mean[pair]);
-    s.in.swap(gap[pair]);
-  }
+  separableBlur(taps, next, r, o, blk.b, s, weight);
+  for (int pair = 0; pair < 2; ++pair) separableBlur(taps, gap[pair], r, o, blk.b, s, mean[pair]);
   const Kernel& largest = kernels().scale[0];
   auto ramp = [](double x, const double(&range)[2]) {
     return std::min(1.0, std::max(0.0, (x - range[0]) / (range[1] - range[0])));
