@@ -58,8 +58,9 @@ TEST_P(FittedPatches, NoSpuriousCellsAndBetterThanPaper) {
   EXPECT_EQ(fitted.method, PatchMethod::Fitted);
   ASSERT_EQ(fitted.cells.size(), paper.cells.size());
   EXPECT_EQ(countSpuriousCells(fitted, *field, 8, 0.5), 0);
-  if (!test::kSanitizedBuild)  // 4,096 points a cell: in the Release run
+  if (!test::kSanitizedBuild) {  // 4,096 points a cell: in the Release run
     EXPECT_EQ(countSpuriousCells(fitted, *field, 16, 0.5), 0);
+  }
 
   const double voxel = g.geometry.spacing.minCoeff();
   const double iso = field->defaultIsovalue();

@@ -41,17 +41,29 @@ enum Stream : int {
   kZeroMasks,    ///< one byte per vertex on a grid point: which of its normal's cross components are zero
   kExact,        ///< vertices kept in full precision: count; per vertex index delta, f64 t, 3 f64 normal
   kRefined,      ///< (flag bit 3) vertices with more bits: u8 bits, count; per vertex index delta, t, u, v
+  kFineCoefficients,  ///< (flag bit 4) coefficients with more bits: u8 bits; cells, then faces: count,
+                      ///< per item index delta and the finer residual
   kNumStreams
 };
-/// Streams of a chunk in files without refinements (written before they existed, and fitted models).
+/// Streams of a chunk in files without refinements (written before they existed, and most fitted models).
 constexpr int kStreamsBeforeRefinements = kRefined;
+/// Streams of a chunk with refined vertices only (flag bit 3 without bit 4).
+constexpr int kStreamsWithRefinedVertices = kFineCoefficients;
 
 enum Flags : std::uint8_t {
   kSidesStored = 1,
   kCentralsStored = 2,
   kWeightsStored = 4,
-  kRefinementsStored = 8
+  kRefinementsStored = 8,
+  kFineCoefficientsStored = 16  ///< needs kRefinementsStored (its stream follows the refined vertices')
 };
+
+/// How many streams a chunk of a file with these flags has.
+int chunkStreams(std::uint8_t flags) {
+  return (flags & kFineCoefficientsStored) ? kNumStreams
+         : (flags & kRefinementsStored)    ? kStreamsWithRefinedVertices
+                                           : kStreamsBeforeRefinements;
+}
 
 /// Extra bits of a refined vertex's crossing parameter and normal code: their steps are 2^-8 of the
 /// header's (docs/model-format.md, "Refined vertices").
@@ -219,6 +231,22 @@ double coefficientValue(std::int64_t code, double step, int m) {
   bits ^= static_cast<std::uint64_t>(code < 0) << 63;
   std::memcpy(&a, &bits, 8);
   return a * step;
+}
+
+/// The step between the values of the codes next to `code` (coefficientCode): `step` in the linear range,
+/// step 2^block above it. A refined coefficient adds a residual in steps of this 2^-bits.
+double codeStep(std::int64_t code, double step, int m) {
+  const std::int64_t lim = std::int64_t(1) << m;
+  const std::int64_t c = code < 0 ? -code : code;
+  const std::int64_t block = c < lim ? 0 : (c - lim) >> m;
+  return std::ldexp(step, static_cast<int>(std::min<std::int64_t>(block, 4000)));
+}
+
+/// The value of a refined coefficient: its code's value plus `fine` steps of 2^-bits codeStep. The writer's
+/// and the reader's expression, so both get the same bits.
+double fineCoefficientValue(double coarse, std::int64_t fine, std::int64_t code, double step, int m,
+                            int bits) {
+  return coarse + static_cast<double>(fine) * std::ldexp(codeStep(code, step, m), -bits);
 }
 
 void octEncode(const Vec3& n, double& u, double& v) {
@@ -1458,10 +1486,13 @@ bool refineIllConditionedCells(const Model& m, const Model& sk, const CellFaces&
 }
 
 /// How far (voxels, estimated: surfaceShiftEstimate) a cell's stored surface may move before its corners are
-/// refined: a fifth of the bound docs/model-format.md states, since the estimate samples the cell sparsely.
-constexpr double kShiftTarget = 0.002;
+/// refined (paper models) or its coefficients and then its corners (fitted): a fifth of the bound
+/// docs/model-format.md states for paper models, two fifths for fitted ones, since the estimate samples the
+/// cell sparsely. Fitted models' patches amplify rounding far less, and each refined cell costs bytes.
+constexpr double kPaperShiftTarget = 0.002;
+constexpr double kFittedShiftTarget = 0.003;
 
-/// What refineMovingCells keeps from one round to the next, so that a round estimates again only the cells
+/// What estimateMovingCells keeps from one round to the next, so that a round estimates again only the cells
 /// whose stored patch changed: those around the corners the last round refined, and those whose normal or
 /// side predictions these moved. The other cells' estimates would repeat the last ones, number for number.
 struct MovingCells {
@@ -1474,21 +1505,41 @@ bool sameBits(double a, double b) {
   return std::memcmp(&a, &b, sizeof a) == 0;
 }
 
-/// Refines the corners of the cells whose stored surface the codes chosen so far would move by more than
-/// kShiftTarget. `sk` holds the stored corners; its side and central coefficients are set here to what a
-/// reader will decode. Returns whether any vertex was newly refined.
-bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Chunks& chunks,
-                       const std::vector<ChunkSource>& sources, const std::vector<double>& prediction,
-                       const ModelFileV2Options& q, MovingCells& last) {
+/// The coefficients a writer stores with kRefineBits more bits (fitted models: those of the cells whose
+/// surface the plain codes would move too far): per model cell its central coefficient, per face of the file
+/// its side coefficient. Empty: none.
+struct FineCoefficients {
+  std::vector<std::uint8_t> cell, face;
+  bool any() const {
+    return std::any_of(cell.begin(), cell.end(), [](std::uint8_t x) { return x != 0; }) ||
+           std::any_of(face.begin(), face.end(), [](std::uint8_t x) { return x != 0; });
+  }
+};
+
+/// The value a reader decodes for coefficient w stored against prediction p: p plus its code's value, and
+/// with `refined` plus the finer residual, which `fine` gets.
+double storedCoefficient(double w, double p, double step, int m, bool refined, std::int64_t* fine = nullptr) {
+  const std::int64_t code = coefficientCode(w - p, step, m);
+  const double coarse = coefficientValue(code, step, m);
+  if (!refined) return p + coarse;
+  const std::int64_t r = roundHalfAway((w - p - coarse) / std::ldexp(codeStep(code, step, m), -kRefineBits));
+  if (fine) *fine = r;
+  return p + fineCoefficientValue(coarse, r, code, step, m, kRefineBits);
+}
+
+/// Sets `sk`'s side and central coefficients to what a reader will decode, and estimates again the cells
+/// whose stored patch changed since the last call (every cell the first time): last.moving[c] says whether
+/// cell c's stored surface moves by more than the method's shift target (surfaceShiftExceeds).
+void estimateMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, const Chunks& chunks,
+                         const std::vector<ChunkSource>& sources, const std::vector<double>& prediction,
+                         const ModelFileV2Options& q, const FineCoefficients& fine, MovingCells& last) {
+  const double threshold = m.method == PatchMethod::Paper ? kPaperShiftTarget : kFittedShiftTarget;
   std::vector<double> side(prediction.size(), 0.0);
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const std::uint64_t base = chunks.list[i].faceBase;
-    for (std::size_t f = 0; f < sources[i].side.size(); ++f) {
-      const double p = prediction[base + f];
-      side[base + f] =
-          p + coefficientValue(coefficientCode(sources[i].side[f] - p, q.sideStep, q.sideMantissa),
-                               q.sideStep, q.sideMantissa);
-    }
+    for (std::size_t f = 0; f < sources[i].side.size(); ++f)
+      side[base + f] = storedCoefficient(sources[i].side[f], prediction[base + f], q.sideStep, q.sideMantissa,
+                                         !fine.face.empty() && fine.face[base + f]);
   });
   const bool first = last.vertices.empty();
   std::vector<std::uint8_t> vertexChanged(first ? 0 : sk.vertices.size());
@@ -1510,16 +1561,22 @@ bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Ch
       changed = changed || !sameBits(w, cell.faceCoefficient[f]);
       cell.faceCoefficient[f] = w;
     }
-    const double central =
-        coefficientValue(coefficientCode(m.cells[c].central, q.centralStep, q.centralMantissa), q.centralStep,
-                         q.centralMantissa);
+    const double central = storedCoefficient(m.cells[c].central, 0.0, q.centralStep, q.centralMantissa,
+                                             !fine.cell.empty() && fine.cell[c]);
     changed = changed || !sameBits(central, cell.central);
     cell.central = central;
     for (int k = 0; !changed && k < cell.numCorners(); ++k)
       changed = vertexChanged[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]] != 0;
-    if (changed) moving[c] = surfaceShiftExceeds(m.patch(c), sk.patch(c), kShiftTarget);
+    if (changed) moving[c] = surfaceShiftExceeds(m.patch(c), sk.patch(c), threshold);
   });
   last.vertices = sk.vertices;
+}
+
+/// Refines the corners of the cells estimateMovingCells found moving. Returns whether any vertex was newly
+/// refined.
+bool refineMovingCorners(const Model& m, const Model& sk, Chunks& chunks,
+                         const std::vector<ChunkSource>& sources, int positionBits,
+                         const std::vector<std::uint8_t>& moving) {
   std::vector<std::uint8_t> keep(sk.vertices.size(), 0);
   for (std::size_t c = 0; c < sk.cells.size(); ++c)
     if (moving[c])
@@ -1530,11 +1587,85 @@ bool refineMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, Ch
     ChunkTopology& ch = chunks.list[i];
     for (std::size_t v = 0; v < ch.vertexKey.size(); ++v)
       if (keep[ch.vertexBase + v] && ch.refined[v] != 1) {
-        refineVertex(m, chunks.L, q.positionBits, ch, sources[i], v);
+        refineVertex(m, chunks.L, positionBits, ch, sources[i], v);
         added = true;
       }
   }
   return added;
+}
+
+/// Refines the central and side coefficients of the cells estimateMovingCells found moving. Returns whether
+/// any coefficient was newly refined.
+bool refineMovingCoefficients(const CellFaces& cellFaces, std::size_t faces,
+                              const std::vector<std::uint8_t>& moving, FineCoefficients& fine) {
+  fine.cell.resize(moving.size(), 0);
+  fine.face.resize(faces, 0);
+  bool added = false;
+  for (std::size_t c = 0; c < moving.size(); ++c) {
+    if (!moving[c]) continue;
+    added = added || !fine.cell[c];
+    fine.cell[c] = 1;
+    for (std::uint32_t fi : cellFaces[c])
+      if (fi != kNone) {
+        added = added || !fine.face[fi];
+        fine.face[fi] = 1;
+      }
+  }
+  return added;
+}
+
+/// Fitted models: refines the coefficients that a refined code holds exactly and a plain one does not (those
+/// of a model read from a file with refined coefficients), so that writing it again keeps them.
+void refineExactCoefficients(const Model& m, const Chunks& chunks, const std::vector<ChunkSource>& sources,
+                             const ModelFileV2Options& q, std::size_t faces, FineCoefficients& fine) {
+  auto exactOnlyWhenRefined = [](double w, double step, int mantissa) {
+    return storedCoefficient(w, 0.0, step, mantissa, false) != w &&
+           storedCoefficient(w, 0.0, step, mantissa, true) == w;
+  };
+  fine.cell.assign(m.cells.size(), 0);
+  fine.face.assign(faces, 0);
+  tbb::parallel_for(std::size_t(0), m.cells.size(), [&](std::size_t c) {
+    fine.cell[c] = exactOnlyWhenRefined(m.cells[c].central, q.centralStep, q.centralMantissa);
+  });
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    for (std::size_t f = 0; f < sources[i].side.size(); ++f)
+      fine.face[chunks.list[i].faceBase + f] =
+          exactOnlyWhenRefined(sources[i].side[f], q.sideStep, q.sideMantissa);
+  });
+}
+
+/// A chunk's refined coefficients (stream kFineCoefficients): its cells', then its faces'.
+void writeFineCoefficients(ChunkTopology& ch, const ChunkSource& src, const Model& m,
+                           const std::vector<double>& prediction, const ModelFileV2Options& q,
+                           const FineCoefficients& fine) {
+  std::vector<std::uint8_t>& out = ch.streams[kFineCoefficients];
+  out.push_back(static_cast<std::uint8_t>(kRefineBits));
+  auto put = [&out](std::size_t n, auto&& refined, auto&& residual) {
+    std::size_t count = 0;
+    for (std::size_t j = 0; j < n; ++j) count += refined(j);
+    putVarint(out, count);
+    for (std::size_t j = 0, last = 0; j < n; ++j) {
+      if (!refined(j)) continue;
+      putVarint(out, j - last);
+      last = j + 1;
+      putVarint(out, zigzag(residual(j)));
+    }
+  };
+  put(
+      src.cell.size(), [&](std::size_t j) { return fine.cell[static_cast<std::size_t>(src.cell[j])] != 0; },
+      [&](std::size_t j) {
+        std::int64_t r = 0;
+        storedCoefficient(m.cells[static_cast<std::size_t>(src.cell[j])].central, 0.0, q.centralStep,
+                          q.centralMantissa, true, &r);
+        return r;
+      });
+  put(
+      src.side.size(), [&](std::size_t f) { return fine.face[ch.faceBase + f] != 0; },
+      [&](std::size_t f) {
+        std::int64_t r = 0;
+        storedCoefficient(src.side[f], prediction[ch.faceBase + f], q.sideStep, q.sideMantissa, true, &r);
+        return r;
+      });
 }
 
 /// normalCode with the prediction's own frame (frameOf: the same bits as the blocks' frames).
@@ -1634,9 +1765,8 @@ void writeVertexStreams(ChunkTopology& ch, const std::vector<std::array<std::int
       last = v + 1;
       for (std::int32_t f : ch.fine[v]) putVarint(r, zigzag(f));
     }
-  } else {
-    ch.streams.resize(kStreamsBeforeRefinements);
   }
+  ch.streams.resize(static_cast<std::size_t>(chunkStreams(flags)));
   putVarint(ch.streams[kExact], ch.exact.size());
   for (std::size_t k = 0; k < ch.exact.size(); ++k) {
     putVarint(ch.streams[kExact], ch.exact[k] - (k ? ch.exact[k - 1] + 1 : 0));
@@ -1695,6 +1825,38 @@ void checkOptions(const ModelFileV2Options& q) {
     throw Error("model format 2: mantissa bits must be in 1..24");
 }
 
+/// The writer's refinement (ModelFileV2Options::refineMovingCells). The first round: paper models refine the
+/// corners of the cells around ill-conditioned faces, fitted models the coefficients of the cells whose
+/// surface the plain codes would move too far. Then, at most three rounds, the corners of the cells whose
+/// surface the codes would still move too far; after each change of corners `recode` places the vertices and
+/// codes the normals again, and the paper's side predictions are made again. Returns the refined
+/// coefficients.
+template <class Recode>
+FineCoefficients refineCells(const Model& m, Model& sk, const CellFaces& cellFaces, Chunks& chunks,
+                             const std::vector<ChunkSource>& sources, std::vector<double>& sidePrediction,
+                             const ModelFileV2Options& q, std::size_t faces, Recode&& recode) {
+  const bool paper = m.method == PatchMethod::Paper;
+  MovingCells moving;
+  FineCoefficients fine;
+  if (!paper) refineExactCoefficients(m, chunks, sources, q, faces, fine);
+  for (int round = 0; q.refineMovingCells && round < 4; ++round) {
+    if (paper && round == 0) {
+      refineIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction, q.positionBits);
+    } else {
+      estimateMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fine, moving);
+      if (!paper && round == 0) {
+        refineMovingCoefficients(cellFaces, faces, moving.moving, fine);
+        continue;  // the corners are as they were; the next round estimates the cells whose coefficients
+                   // changed
+      }
+      if (!refineMovingCorners(m, sk, chunks, sources, q.positionBits, moving.moving)) break;
+    }
+    recode();
+    if (paper) sidePrediction = paperSidePrediction(sk, cellFaces, faces);
+  }
+  return fine;
+}
+
 }  // namespace
 
 ModelFileV2Options ModelFileV2Options::forMethod(PatchMethod method) {
@@ -1738,20 +1900,19 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   std::vector<LoopNeighbours> around;
   CellFaces cellFaces;
   {
-    ModelUse use;
-    const bool paper = m.method == PatchMethod::Paper;  // only its side coefficients need sk's cells
-    fillCells(chunks, sk, around, paper ? &cellFaces : nullptr, &m, &use, paper, name);
+    ModelUse use;  // sk's cells: the stored patches, which the writer checks against the built ones
+    fillCells(chunks, sk, around, &cellFaces, &m, &use, true, name);
     tbb::parallel_for(std::size_t(0), chunks.list.size(),
                       [&](std::size_t i) { codeChunkItems(m, L, q, use, chunks.list[i], sources[i], name); });
   }
-  const bool refine = m.method == PatchMethod::Paper;  // paper models: refined vertices (flag bit 3)
-  if (refine)
-    tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
-      refineExactPositions(m, L, q.positionBits, chunks.list[i], sources[i]);
-    });
+  const bool paper = m.method == PatchMethod::Paper;
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    refineExactPositions(m, L, q.positionBits, chunks.list[i], sources[i]);
+  });
   placeVertices(chunks, q.positionBits, sk);
   const double nStep = std::ldexp(1.0, -q.normalBits);
-  std::uint8_t flags = refine ? kSidesStored | kRefinementsStored : kSidesStored;
+  // Paper models always list their refined vertices (flag bit 3); fitted ones when they have some.
+  std::uint8_t flags = paper ? kSidesStored | kRefinementsStored : kSidesStored;
   for (const ModelCell& c : m.cells)
     if (c.central != 0) flags |= kCentralsStored;
   if (m.method == PatchMethod::Fitted) flags |= kCentralsStored;
@@ -1760,7 +1921,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   // Normal codes against the prediction, and the normals (and weights) a reader will have.
   std::vector<std::array<std::int64_t, 2>> codes(sk.vertices.size(), {0, 0});
   auto codeNormals = [&] {
-    decodeNormals(sk, chunks, around, m.method == PatchMethod::Paper, [&](std::size_t i) {
+    decodeNormals(sk, chunks, around, true, [&](std::size_t i) {
       return [&, i](std::size_t first, NormalBlock& b) {
         const ChunkTopology& ch = chunks.list[i];
         for (std::size_t k = 0; k < b.count; ++k) {
@@ -1770,11 +1931,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
           if (mvi >= 0) {
             const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
             const Vec3 pred(b.px[k], b.py[k], b.pz[k]);
-            if (refine)
-              refinedNormalCode(chunks.list[i], v, pred, mv.normal, nStep, c[0], c[1]);
-            else
-              normalCode(pred, Vec3(b.ax[k], b.ay[k], b.az[k]), Vec3(b.bx[k], b.by[k], b.bz[k]), mv.normal,
-                         nStep, static_cast<int>(ch.vertexKey[v] % 3), ch.vertexFlags[v], c[0], c[1]);
+            refinedNormalCode(chunks.list[i], v, pred, mv.normal, nStep, c[0], c[1]);
             sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
           }
           // A refined vertex's code is in steps 2^-refineBits as fine.
@@ -1788,18 +1945,15 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   codeNormals();
   std::vector<double> sidePrediction =
       m.method == PatchMethod::Paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
-  // Paper models: refine the cells around ill-conditioned faces, then those whose surface the codes would
-  // still move too far (at most three rounds), coding the normals and predicting the sides again after each.
-  MovingCells moving;
-  for (int round = 0;
-       refine && round < 4 &&
-       (round ? refineMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, moving)
-              : (refineIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction, q.positionBits),
-                 true));
-       ++round) {
+  const FineCoefficients fine = refineCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fb, [&] {
     placeVertices(chunks, q.positionBits, sk);
     codeNormals();
-    sidePrediction = paperSidePrediction(sk, cellFaces, fb);
+  });
+  if (!paper) {
+    for (const ChunkTopology& ch : chunks.list)
+      for (std::size_t v = 0; v < ch.vertexKey.size(); ++v)
+        if (ch.isRefined(v)) flags |= kRefinementsStored;
+    if (fine.any()) flags |= kRefinementsStored | kFineCoefficientsStored;
   }
   std::vector<std::vector<std::uint8_t>> chunkBytes(chunks.list.size());
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
@@ -1810,6 +1964,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
     ch.streams[kSides].reserve(2 * src.side.size());
     ch.streams[kCentrals].reserve(2 * src.cell.size());
     writeVertexStreams(ch, codes, sk, flags);
+    if (flags & kFineCoefficientsStored) writeFineCoefficients(ch, src, m, sidePrediction, q, fine);
     for (std::size_t f = 0; f < src.side.size(); ++f)
       putVarint(ch.streams[kSides], zigzag(coefficientCode(src.side[f] - sidePrediction[ch.faceBase + f],
                                                            q.sideStep, q.sideMantissa)));
@@ -1939,7 +2094,9 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
   r.skip(12);  // magic and version, checked by the caller
   FileHeader h;
   h.flags = readModelHeader(r, m);
-  if (h.flags > 15) r.fail("unknown flags");
+  if (h.flags > 31) r.fail("unknown flags");
+  if ((h.flags & kFineCoefficientsStored) && !(h.flags & kRefinementsStored))
+    r.fail("flags: refined coefficients without refined vertices");
   // Point and brick keys are 64-bit: at most 2^62 points (each dimension is at most 2^31).
   const std::int64_t plane = m.geometry.dims[0] * m.geometry.dims[1];
   if (m.geometry.dims[2] > (std::int64_t(1) << 62) / plane)
@@ -1999,15 +2156,44 @@ FileHeader readHeader(const std::uint8_t* data, std::size_t size, const std::str
   return h;
 }
 
+/// Adds the finer residuals of a chunk's refined coefficients (flag bit 4) to the values read: first the
+/// cells', then the faces'. `centralCodes` and `sideCodes` are the codes those values came from.
+void readFineCoefficients(ChunkTopology& ch, const FileHeader& h,
+                          const std::vector<std::int64_t>& centralCodes,
+                          const std::vector<std::int64_t>& sideCodes, const std::string& where) {
+  StreamReader fr(&ch.streams[kFineCoefficients], where + ": refined coefficients");
+  const int bits = fr.byte();
+  if (bits < 1 || bits > 20) fr.fail("has refinement bits out of range");
+  auto apply = [&](std::vector<double>& w, const std::vector<std::int64_t>& codes, double step, int m,
+                   const char* items) {
+    const std::uint64_t n = fr.varint();
+    if (n > w.size()) fr.fail(std::string("lists more ") + items + " than the chunk has");
+    std::uint64_t next = 0;
+    for (std::uint64_t k = 0; k < n; ++k) {
+      next += fr.varint();
+      if (next >= w.size()) fr.fail(std::string("lists one of the ") + items + " the chunk does not have");
+      const auto i = static_cast<std::size_t>(next++);
+      const std::int64_t fine = fr.svarint();
+      if (fine < -(std::int64_t(1) << bits) || fine > (std::int64_t(1) << bits))
+        fr.fail("has a finer code out of range");
+      w[i] = fineCoefficientValue(w[i], fine, codes[i], step, m, bits);
+      if (!(std::abs(w[i]) <= std::numeric_limits<double>::max())) fr.fail("has a coefficient out of range");
+    }
+  };
+  apply(ch.central, centralCodes, h.q.centralStep, h.q.centralMantissa, "cells");
+  apply(ch.side, sideCodes, h.q.sideStep, h.q.sideMantissa, "faces");
+  fr.expectEnd();
+}
+
 /// A chunk's side coefficients (per owned face; the paper method's residuals against its rule) and central
-/// coefficients (per cell).
+/// coefficients (per cell), with the finer parts of refined ones.
 void readCoefficients(ChunkTopology& ch, const FileHeader& h, const std::string& where) {
   StreamReader sr(&ch.streams[kSides], where + ": side coefficients");
   StreamReader cr(&ch.streams[kCentrals], where + ": central coefficients");
   // Each stream's codes first, then their values; a non-finite value is reported once the stream is read.
-  std::vector<std::int64_t> codes;
-  auto read = [&codes](StreamReader& in, std::vector<double>& out, std::size_t n, double step, int m,
-                       const char* what) {
+  std::vector<std::int64_t> sideCodes, centralCodes;
+  auto read = [](StreamReader& in, std::vector<std::int64_t>& codes, std::vector<double>& out, std::size_t n,
+                 double step, int m, const char* what) {
     codes.resize(n);
     in.svarints(n, codes.data());
     out.resize(n);
@@ -2019,11 +2205,13 @@ void readCoefficients(ChunkTopology& ch, const FileHeader& h, const std::string&
     }
     if (!finite) in.fail(std::string("has a ") + what + " coefficient out of range");
   };
-  if (h.flags & kSidesStored) read(sr, ch.side, ch.faceKey.size(), h.q.sideStep, h.q.sideMantissa, "side");
+  if (h.flags & kSidesStored)
+    read(sr, sideCodes, ch.side, ch.faceKey.size(), h.q.sideStep, h.q.sideMantissa, "side");
   if (h.flags & kCentralsStored)
-    read(cr, ch.central, ch.cells.size(), h.q.centralStep, h.q.centralMantissa, "central");
+    read(cr, centralCodes, ch.central, ch.cells.size(), h.q.centralStep, h.q.centralMantissa, "central");
   sr.expectEnd();
   cr.expectEnd();
+  if (h.flags & kFineCoefficientsStored) readFineCoefficients(ch, h, centralCodes, sideCodes, where);
 }
 
 /// A chunk's refined vertices: which, and the finer parts of their crossing parameter and normal codes.
@@ -2078,8 +2266,9 @@ void readChunk(const std::uint8_t* data, const Layout& L, const FileHeader& h, s
                                         8 * V,
                                         V,
                                         10 + 42 * V,
-                                        11 + 31 * V};
-  const int streams = (h.flags & kRefinementsStored) ? kNumStreams : kStreamsBeforeRefinements;
+                                        11 + 31 * V,
+                                        21 + 15 * (C + F)};
+  const int streams = chunkStreams(h.flags);
   ch.streams.resize(static_cast<std::size_t>(streams));
   const std::unique_ptr<ZSTD_DCtx, std::size_t (*)(ZSTD_DCtx*)> context(ZSTD_createDCtx(), ZSTD_freeDCtx);
   if (!context) throw Error(where + ": cannot create a zstd context");
@@ -2250,7 +2439,8 @@ std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::v
                                                   "corner coefficients",
                                                   "zero normal components",
                                                   "full-precision vertices",
-                                                  "refined vertices"};
+                                                  "refined vertices",
+                                                  "refined coefficients"};
   Model m;
   Layout L;
   const FileHeader h = readHeader(file.data(), file.size(), "model", m, L);
@@ -2259,7 +2449,7 @@ std::vector<std::pair<std::string, std::size_t>> modelFileV2Streams(const std::v
   std::size_t framing = 0;
   for (const DirectoryEntry& e : h.dir) {
     std::size_t at = e.offset;
-    for (int s = 0; s < ((h.flags & kRefinementsStored) ? kNumStreams : kStreamsBeforeRefinements); ++s) {
+    for (int s = 0; s < chunkStreams(h.flags); ++s) {
       std::uint32_t stored;
       if (at + 8 > e.offset + e.bytes)
         throw Error("model: damaged model file: a chunk's streams are truncated");

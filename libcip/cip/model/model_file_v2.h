@@ -24,6 +24,10 @@ struct ModelFileV2Options {
   double centralStep = 0.008;  ///< central coefficients, likewise
   int centralMantissa = 4;
   int zstdLevel = 3;  ///< the streams' zstd level, 1..19 (files written before: 9; a reader takes any)
+  /// Cells whose stored surface the plain codes would move too far (estimated: surface_shift.h) get finer
+  /// codes: their corners (refined vertices) and, in fitted models, first their coefficients
+  /// (docs/model-format.md, "Refined vertices and coefficients"). Off only to measure what that buys.
+  bool refineMovingCells = true;
 
   /// The defaults for a model built with `method`: the paper's coefficients are recomputed from the stored
   /// corners and are more sensitive to them, so its normals get one more bit (and the vertices of cells that
