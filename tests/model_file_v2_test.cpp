@@ -253,6 +253,12 @@ TEST(ModelFileV2, FittedCellsThatAmplifyRoundingKeepFinerCodes) {
   EXPECT_GT(streamBytes(bytes, "refined coefficients"), 100u);
   EXPECT_LT(static_cast<double>(bytes.size()), 1.1 * static_cast<double>(plainBytes.size()));
   expectRewritesToTheSameModel(m, bytes);
+  // Refined coefficients follow the refined vertices' stream: a file that claims them without it is damaged.
+  std::vector<std::uint8_t> damaged = bytes;
+  damaged[kFlags] = static_cast<std::uint8_t>(damaged[kFlags] & ~8);
+  resealHeader(damaged, m);
+  EXPECT_NE(parseError(damaged).find("refined coefficients without refined vertices"), std::string::npos)
+      << parseError(damaged);
 }
 
 // Files written before (tests/data/model-v2, whose README says how) decode to the models they decoded to when
