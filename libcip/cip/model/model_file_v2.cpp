@@ -211,6 +211,13 @@ std::int64_t coefficientCode(double w, double step, int m) {
   return v < 0 ? -code : code;
 }
 
+/// The block of a code (coefficientCode) of magnitude c: 0 in the linear range (c < 2^m), above it the
+/// power of two its m-bit mantissa is scaled by.
+std::int64_t codeBlock(std::int64_t c, int m) {
+  const std::int64_t lim = std::int64_t(1) << m;
+  return c < lim ? 0 : (c - lim) >> m;
+}
+
 double coefficientValue(std::int64_t code, double step, int m) {
   const std::int64_t lim = std::int64_t(1) << m;
   const std::int64_t c = code < 0 ? -code : code;
@@ -218,7 +225,7 @@ double coefficientValue(std::int64_t code, double step, int m) {
   // ldexp is (the power is built from its exponent bits while it is a normal number). Selects, not branches:
   // which case a code is in follows no pattern.
   const bool linear = c < lim;
-  const std::int64_t block = linear ? 0 : (c - lim) >> m;
+  const std::int64_t block = codeBlock(c, m);
   const std::int64_t mantissa = linear ? c : lim + ((c - lim) & (lim - 1));
   double a;
   if (block < 1000) {
@@ -239,9 +246,7 @@ double coefficientValue(std::int64_t code, double step, int m) {
 /// The step between the values of the codes next to `code` (coefficientCode): `step` in the linear range,
 /// step 2^block above it. A refined coefficient adds a residual in steps of this 2^-bits.
 double codeStep(std::int64_t code, double step, int m) {
-  const std::int64_t lim = std::int64_t(1) << m;
-  const std::int64_t c = code < 0 ? -code : code;
-  const std::int64_t block = c < lim ? 0 : (c - lim) >> m;
+  const std::int64_t block = codeBlock(code < 0 ? -code : code, m);
   return std::ldexp(step, static_cast<int>(std::min<std::int64_t>(block, 4000)));
 }
 
@@ -1952,7 +1957,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   };
   codeNormals();
   std::vector<double> sidePrediction =
-      m.method == PatchMethod::Paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
+      paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
   const FineCoefficients fine = refineCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fb, [&] {
     placeVertices(chunks, q.positionBits, sk);
     codeNormals();

@@ -26,7 +26,8 @@ struct ModelFileV2Options {
   int zstdLevel = 3;  ///< the streams' zstd level, 1..19 (files written before: 9; a reader takes any)
   /// Cells whose stored surface the plain codes would move too far (estimated: surface_shift.h) get finer
   /// codes: their corners (refined vertices) and, in fitted models, first their coefficients
-  /// (docs/model-format.md, "Refined vertices and coefficients"). Off only to measure what that buys.
+  /// (docs/model-format.md, "Refined vertices" and "Refined coefficients"). Off only to measure what that
+  /// buys.
   bool refineMovingCells = true;
 
   /// The defaults for a model built with `method`: the paper's coefficients are recomputed from the stored
