@@ -1704,6 +1704,18 @@ void stableNormalCode(const Vec3& pred, const Vec3& n, double step, int axis, st
   }
 }
 
+/// What refinedNormalCode last saw for a vertex (its prediction, refinement state and flags; its normal and
+/// step do not change) and the state it left. The writer codes the normals again after every round of refined
+/// corners, and most vertices' predictions did not change: they keep their codes without the search.
+struct NormalCodeInput {
+  double px = 0, py = 0, pz = 0;
+  std::uint8_t refinedBefore = 0, flags = 0, refinedAfter = 0, valid = 0;
+  bool sameAs(const NormalCodeInput& o) const {
+    return valid && sameBits(px, o.px) && sameBits(py, o.py) && sameBits(pz, o.pz) &&
+           refinedBefore == o.refinedBefore && flags == o.flags;
+  }
+};
+
 /// The code of a vertex's normal: at the header's step, or for a refined vertex 2^-kRefineBits of it. A
 /// vertex whose crossing parameter a plain code holds as well as a refined one (refined = 2) stays refined
 /// only when its normal needs the finer step to be held exactly.
@@ -1933,6 +1945,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
     if (v.weight != 1.0) flags |= kWeightsStored;
   // Normal codes against the prediction, and the normals (and weights) a reader will have.
   std::vector<std::array<std::int64_t, 2>> codes(sk.vertices.size(), {0, 0});
+  std::vector<NormalCodeInput> lastInput(sk.vertices.size());
   auto codeNormals = [&] {
     decodeNormals(sk, chunks, around, true, [&](std::size_t i) {
       return [&, i](std::size_t first, NormalBlock& b) {
@@ -1943,8 +1956,19 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
           std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
           if (mvi >= 0) {
             const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
-            const Vec3 pred(b.px[k], b.py[k], b.pz[k]);
-            refinedNormalCode(chunks.list[i], v, pred, mv.normal, nStep, c[0], c[1]);
+            ChunkTopology& out = chunks.list[i];
+            NormalCodeInput& last = lastInput[ch.vertexBase + v];
+            const NormalCodeInput now{b.px[k], b.py[k], b.pz[k],
+                                      out.refined.empty() ? std::uint8_t(0) : out.refined[v],
+                                      ch.vertexFlags[v]};
+            if (last.sameAs(now)) {
+              if (!out.refined.empty()) out.refined[v] = last.refinedAfter;
+            } else {
+              refinedNormalCode(out, v, Vec3(now.px, now.py, now.pz), mv.normal, nStep, c[0], c[1]);
+              last = now;
+              last.refinedAfter = out.refined.empty() ? std::uint8_t(0) : out.refined[v];
+              last.valid = 1;
+            }
             sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
           }
           // A refined vertex's code is in steps 2^-refineBits as fine.

@@ -1,7 +1,10 @@
 #include "cip/patch/surface_shift.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+
+#include "cip/topology/cube_topology.h"
 
 namespace cip {
 
@@ -32,6 +35,69 @@ double shiftAt(const CornerPatch& built, const CornerPatch& stored, const Vec3& 
   return std::abs(stored.value(x) - d.value) / g;
 }
 
+/// The lattice of forLatticePoints, in its order, with the products of squared face planes that a patch's
+/// terms multiply (CornerPatch: corner, side and central terms), per face mask and point.
+constexpr int kLatticePoints = 32;
+struct Lattice {
+  std::array<Vec3, kLatticePoints> x;
+  std::array<std::array<double, kLatticePoints>, 64> product;  ///< [mask][point]
+};
+
+const Lattice& lattice() {
+  static const Lattice table = [] {
+    Lattice t{};
+    int n = 0;
+    forLatticePoints([&](const Vec3& x) {
+      t.x[static_cast<std::size_t>(n++)] = x;
+      return false;
+    });
+    for (unsigned mask = 0; mask < 64; ++mask)
+      for (int p = 0; p < kLatticePoints; ++p) {
+        double r = 1;
+        for (int f = 0; f < 6; ++f)
+          if ((mask >> f) & 1) {
+            const double b = CornerPatch::facePlane(f, t.x[static_cast<std::size_t>(p)]);
+            r *= b * b;
+          }
+        t.product[mask][static_cast<std::size_t>(p)] = r;
+      }
+    return t;
+  }();
+  return table;
+}
+
+/// The patch's value at every lattice point, and a bound on the magnitudes of the terms summed there (each
+/// corner plane at most |n|_1 in the unit cell), which bounds the rounding of any way of summing them.
+void latticeValues(const Lattice& L, const CornerPatch& patch, std::array<double, kLatticePoints>& value,
+                   std::array<double, kLatticePoints>& magnitude) {
+  value.fill(0.0);
+  magnitude.fill(0.0);
+  auto add = [&](double coefficient, unsigned mask, auto&& factor, double factorBound) {
+    const std::array<double, kLatticePoints>& t = L.product[mask];
+    const double bound = std::abs(coefficient) * factorBound;
+    for (int p = 0; p < kLatticePoints; ++p) {
+      value[p] += coefficient * factor(p) * t[p];
+      magnitude[p] += bound * t[p];
+    }
+  };
+  for (int c = 0; c < patch.numCorners; ++c) {
+    const auto ef = cube::edgeFaces(patch.edge[c]);
+    const unsigned mask = patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]));
+    const Vec3 n = patch.normal[c], q = patch.point[c];
+    add(
+        patch.weight[c], mask,
+        [&](int p) {
+          const Vec3& x = L.x[static_cast<std::size_t>(p)];
+          return n[0] * (x[0] - q[0]) + n[1] * (x[1] - q[1]) + n[2] * (x[2] - q[2]);
+        },
+        std::abs(n[0]) + std::abs(n[1]) + std::abs(n[2]));
+  }
+  auto one = [](int) { return 1.0; };
+  for (int f = 0; f < 6; ++f)
+    if ((patch.faceMask >> f) & 1) add(patch.faceCoefficient[f], patch.faceMask & ~(1u << f), one, 1.0);
+  if (patch.central != 0) add(patch.central, patch.faceMask, one, 1.0);
+}
+
 }  // namespace
 
 double surfaceShiftEstimate(const CornerPatch& built, const CornerPatch& stored) {
@@ -44,15 +110,22 @@ double surfaceShiftEstimate(const CornerPatch& built, const CornerPatch& stored)
 }
 
 bool surfaceShiftExceeds(const CornerPatch& built, const CornerPatch& stored, double threshold) {
-  return forLatticePoints([&](const Vec3& x) {
-    const double v = built.value(x), s = stored.value(x);
-    // With |v| <= step g (the point counts) and |s - v| / g > threshold, |v| threshold < |s - v| step.
-    // value() and valueAndGradient() round differently: the margin covers that, so no point that could count
-    // is skipped, and those that are evaluated get the estimate's own test.
-    const double change = std::abs(s - v) + 1e-9 * (std::abs(v) + std::abs(s));
-    if (std::abs(v) * threshold > change * kStep) return false;
-    return shiftAt(built, stored, x) > threshold;
-  });
+  // Both patches' values at every lattice point, from the tabulated face products (most cells are
+  // evaluated whole: they do not move). With |v| <= step g (the point counts) and |s - v| / g > threshold,
+  // |v| threshold < |s - v| step. These values round differently from valueAndGradient(), which the
+  // estimate's own test uses: the margin covers far more than that (a few units of rounding of the terms'
+  // magnitudes), so no point that could count is skipped, and those evaluated get the estimate's test.
+  const Lattice& L = lattice();
+  alignas(32) std::array<double, kLatticePoints> v, s, vMagnitude, sMagnitude;
+  latticeValues(L, built, v, vMagnitude);
+  latticeValues(L, stored, s, sMagnitude);
+  for (int p = 0; p < kLatticePoints; ++p) {
+    const double change = std::abs(s[p] - v[p]) + 1e-9 * (std::abs(v[p]) + std::abs(s[p])) +
+                          1e-12 * (vMagnitude[p] + sMagnitude[p]);
+    if (std::abs(v[p]) * threshold > change * kStep) continue;
+    if (shiftAt(built, stored, L.x[p]) > threshold) return true;
+  }
+  return false;
 }
 
 }  // namespace cip
