@@ -593,7 +593,7 @@ def speed_targets(extraction):
     return rows
 
 
-# glibc's huge-page heap, as extract sets it for itself on inputs of 16 MB and more (extract/huge_page_restart.cpp)
+# glibc's huge-page heap, as extract and raycast set it for themselves on large inputs (libcip/cip/core/huge_pages.cpp)
 HUGE_HEAP = ("glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=4294967296:"
              "glibc.malloc.top_pad=67108864")
 
@@ -678,7 +678,8 @@ def main():
           "openvdb-volumeToMesh: OpenVDB's mesher on the same samples (all voxels active). " + vtk_note + " Times "
           "exclude reading or sampling the volume. Every process of the run (cip_bench with its OpenVDB peer, VTK in "
           "run.py's own Python, raycast, vdb_render) has glibc's huge-page heap, the GLIBC_TUNABLES that extract "
-          "sets for itself on inputs of 16 MB and more (extract/huge_page_restart.cpp). mri-colin27 is the Colin 27 T1 brain template (181x217x181, uint8, "
+          "sets for itself on inputs of 16 MB and more and raycast on inputs of 64 KiB and more or images of 2^20 "
+          "samples (libcip/cip/core/huge_pages.cpp). mri-colin27 is the Colin 27 T1 brain template (181x217x181, uint8, "
           "Debian's mricron-data) at isovalue 60.", "",
           table(extraction, ["case", "method", "threads", "seconds", "mcells_per_s", "output_count"],
                 {"seconds": "%.4f", "mcells_per_s": "%.2f"}), "",

@@ -5,9 +5,8 @@
 namespace cip {
 
 /// glibc backs its heap with transparent huge pages only when told so in the environment at start-up
-/// (GLIBC_TUNABLES=glibc.malloc.hugetlb=1, with a heap that keeps freed memory: huge_page_restart.cpp);
-/// libcip advises its largest tables itself (core/huge_pages.h),
-/// but the many mid-sized vectors of a build still cost a page fault per 4 KiB. On volumes of tens of MB
+/// (restartWithHugePageHeap, core/huge_pages.h); libcip advises its largest tables itself, but the many
+/// mid-sized vectors of a build still cost a page fault per 4 KiB. On volumes of tens of MB
 /// and more that was a fifth of the build (docs/performance.md), so for inputs of at least `minBytes`
 /// (the file, or for an NRRD header the data file it names; analytic fields count as their float32 grid,
 /// `analyticPoints` * 4) this replaces the process by itself with the tunable set. It returns when there is

@@ -3,8 +3,10 @@
 #include <malloc.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
 
@@ -85,6 +87,18 @@ std::pair<int, int> parseSize(const std::string& text) {
       h < 1 || w > 32768 || h > 32768)
     throw Error("--size '" + text + "' is not WxH with sizes from 1 to 32768 (e.g. 800x600)");
   return {w, h};
+}
+
+bool wantsHugePageHeap(const AppOptions& opt) {
+  std::error_code error;
+  const std::uintmax_t bytes = std::filesystem::file_size(opt.mesh.empty() ? opt.model : opt.mesh, error);
+  if (!error && bytes >= (std::uintmax_t(64) << 10)) return true;
+  try {
+    const auto [width, height] = parseSize(opt.size);
+    return static_cast<double>(width) * height * std::max(opt.spp, 1) >= static_cast<double>(1 << 20);
+  } catch (const Error&) {
+    return false;
+  }
 }
 
 int runApp(const AppOptions& opt) {

@@ -5,6 +5,7 @@
 
 #include "app.h"
 #include "cip/core/error.h"
+#include "cip/core/huge_pages.h"
 
 int main(int argc, char** argv) {
   cip::raycast::AppOptions opt;
@@ -84,6 +85,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
+  if (cip::raycast::wantsHugePageHeap(opt)) cip::restartWithHugePageHeap(argv);
   try {
     return cip::raycast::runApp(opt);
   } catch (const cip::Error& e) {

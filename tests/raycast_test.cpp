@@ -775,6 +775,55 @@ TEST(Raycast, StatsJsonReportsTheRun) {
   EXPECT_FALSE(j.contains("curvature_range"));
 }
 
+// Large renders restart the command once with glibc's huge-page heap (core/huge_pages.h): when it pays (a
+// file of 64 KiB or more, or 2^20 samples or more), and that the restarted run writes the image of a run
+// without it, byte for byte.
+TEST(Raycast, LargeRendersRestartWithTheHugePageHeapAndGiveTheSameImage) {
+  const test::ScratchDir scratch;
+  const fs::path dir = scratch.path();
+  const fs::path small = dir / "small.cip", large = dir / "large.cip";
+  const Model model = sampledModel("torus", 20);
+  writeModel(model, small.string());
+  ModelFileOptions fullPrecision;
+  fullPrecision.version = 1;
+  writeModel(model, large.string(), fullPrecision);
+  ASSERT_LT(fs::file_size(small), 64u << 10);
+  ASSERT_GE(fs::file_size(large), 64u << 10);
+  AppOptions o;
+  o.model = small.string();
+  o.size = "40x30";
+  EXPECT_FALSE(wantsHugePageHeap(o));
+  o.size = "1024x1024";
+  EXPECT_TRUE(wantsHugePageHeap(o));
+  o.size = "128x128";
+  o.spp = 64;
+  EXPECT_TRUE(wantsHugePageHeap(o));
+  o.spp = 63;
+  EXPECT_FALSE(wantsHugePageHeap(o));
+  o.size = "not a size";
+  EXPECT_FALSE(wantsHugePageHeap(o));
+  o.model = large.string();
+  EXPECT_TRUE(wantsHugePageHeap(o));
+  o.model = (dir / "missing.cip").string();
+  o.size = "40x30";
+  EXPECT_FALSE(wantsHugePageHeap(o));
+  o.model.clear();
+  o.mesh = large.string();  // any input file counts by its size
+  EXPECT_TRUE(wantsHugePageHeap(o));
+
+  auto render = [&](const std::string& environment, const fs::path& exr) {
+    const std::string cmd = environment + " " + CIP_RAYCAST_EXE + " '" + large.string() + "' -o '" +
+                            exr.string() + "' --size 40x30 --threads 2 -q";
+    EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd;
+    std::ifstream in(exr, std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  };
+  const std::string restarted = render("", dir / "restarted.exr"),
+                    plain = render("CIP_HUGE_PAGES=0", dir / "plain.exr");
+  ASSERT_GT(plain.size(), 1000u);
+  EXPECT_TRUE(restarted == plain);
+}
+
 TEST(Raycast, MeanCurvatureOfTheSphere) {
   // f = |x|: gradient x/r, Hessian (I - n n^T)/r: H = 1/r.
   const Vec3 p(0.3, -0.2, 0.6);
