@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 
+#include "cip/core/vector_clones.h"
 #include "cip/topology/cube_topology.h"
 
 namespace cip {
@@ -35,12 +36,14 @@ double shiftAt(const CornerPatch& built, const CornerPatch& stored, const Vec3& 
   return std::abs(stored.value(x) - d.value) / g;
 }
 
-/// The lattice of forLatticePoints, in its order, with the products of squared face planes that a patch's
-/// terms multiply (CornerPatch: corner, side and central terms), per face mask and point.
+/// The lattice of forLatticePoints, in its order (also as coordinate arrays), with the products of squared
+/// face planes that a patch's terms multiply (CornerPatch: corner, side and central terms), per face mask and
+/// point.
 constexpr int kLatticePoints = 32;
 struct Lattice {
   std::array<Vec3, kLatticePoints> x;
-  std::array<std::array<double, kLatticePoints>, 64> product;  ///< [mask][point]
+  std::array<std::array<double, kLatticePoints>, 3> coordinate;            ///< [axis][point]
+  alignas(32) std::array<std::array<double, kLatticePoints>, 64> product;  ///< [mask][point]
 };
 
 const Lattice& lattice() {
@@ -51,51 +54,67 @@ const Lattice& lattice() {
       t.x[static_cast<std::size_t>(n++)] = x;
       return false;
     });
+    for (std::size_t p = 0; p < kLatticePoints; ++p)
+      for (int a = 0; a < 3; ++a) t.coordinate[static_cast<std::size_t>(a)][p] = t.x[p][a];
     for (unsigned mask = 0; mask < 64; ++mask)
-      for (int p = 0; p < kLatticePoints; ++p) {
+      for (std::size_t p = 0; p < kLatticePoints; ++p) {
         double r = 1;
         for (int f = 0; f < 6; ++f)
           if ((mask >> f) & 1) {
-            const double b = CornerPatch::facePlane(f, t.x[static_cast<std::size_t>(p)]);
+            const double b = CornerPatch::facePlane(f, t.x[p]);
             r *= b * b;
           }
-        t.product[mask][static_cast<std::size_t>(p)] = r;
+        t.product[mask][p] = r;
       }
     return t;
   }();
   return table;
 }
 
-/// The patch's value at every lattice point, and a bound on the magnitudes of the terms summed there (each
-/// corner plane at most |n|_1 in the unit cell), which bounds the rounding of any way of summing them.
+/// value[p] += coefficient * t[p], magnitude[p] += |coefficient| t[p] over the lattice (a side or central
+/// term).
+CIP_VECTOR_CLONES void addTerm(double coefficient, const double* __restrict t, double* __restrict value,
+                               double* __restrict magnitude) {
+  const double bound = std::abs(coefficient);
+  for (int p = 0; p < kLatticePoints; ++p) {
+    value[p] += coefficient * t[p];
+    magnitude[p] += bound * t[p];
+  }
+}
+
+/// The same for a corner term, weight * S_c(x) * t[p], with |S_c| at most |n|_1 in the unit cell.
+CIP_VECTOR_CLONES void addCornerTerm(double weight, const Vec3& n, const Vec3& q, const Lattice& L,
+                                     const double* __restrict t, double* __restrict value,
+                                     double* __restrict magnitude) {
+  const double nx = n[0], ny = n[1], nz = n[2], qx = q[0], qy = q[1], qz = q[2];
+  const double bound = std::abs(weight) * (std::abs(nx) + std::abs(ny) + std::abs(nz));
+  const double *__restrict x = L.coordinate[0].data(), *__restrict y = L.coordinate[1].data(),
+                           *__restrict z = L.coordinate[2].data();
+  for (int p = 0; p < kLatticePoints; ++p) {
+    const double plane = nx * (x[p] - qx) + ny * (y[p] - qy) + nz * (z[p] - qz);
+    value[p] += weight * plane * t[p];
+    magnitude[p] += bound * t[p];
+  }
+}
+
+/// The patch's value at every lattice point, and a bound on the magnitudes of the terms summed there, which
+/// bounds the rounding of any way of summing them.
 void latticeValues(const Lattice& L, const CornerPatch& patch, std::array<double, kLatticePoints>& value,
                    std::array<double, kLatticePoints>& magnitude) {
   value.fill(0.0);
   magnitude.fill(0.0);
-  auto add = [&](double coefficient, unsigned mask, auto&& factor, double factorBound) {
-    const std::array<double, kLatticePoints>& t = L.product[mask];
-    const double bound = std::abs(coefficient) * factorBound;
-    for (int p = 0; p < kLatticePoints; ++p) {
-      value[p] += coefficient * factor(p) * t[p];
-      magnitude[p] += bound * t[p];
-    }
-  };
   for (int c = 0; c < patch.numCorners; ++c) {
     const auto ef = cube::edgeFaces(patch.edge[c]);
     const unsigned mask = patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]));
-    const Vec3 n = patch.normal[c], q = patch.point[c];
-    add(
-        patch.weight[c], mask,
-        [&](int p) {
-          const Vec3& x = L.x[static_cast<std::size_t>(p)];
-          return n[0] * (x[0] - q[0]) + n[1] * (x[1] - q[1]) + n[2] * (x[2] - q[2]);
-        },
-        std::abs(n[0]) + std::abs(n[1]) + std::abs(n[2]));
+    addCornerTerm(patch.weight[c], patch.normal[c], patch.point[c], L, L.product[mask].data(), value.data(),
+                  magnitude.data());
   }
-  auto one = [](int) { return 1.0; };
   for (int f = 0; f < 6; ++f)
-    if ((patch.faceMask >> f) & 1) add(patch.faceCoefficient[f], patch.faceMask & ~(1u << f), one, 1.0);
-  if (patch.central != 0) add(patch.central, patch.faceMask, one, 1.0);
+    if ((patch.faceMask >> f) & 1)
+      addTerm(patch.faceCoefficient[f], L.product[patch.faceMask & ~(1u << f)].data(), value.data(),
+              magnitude.data());
+  if (patch.central != 0)
+    addTerm(patch.central, L.product[patch.faceMask].data(), value.data(), magnitude.data());
 }
 
 }  // namespace
