@@ -12,6 +12,7 @@
 #include "cip/model/model_builder.h"
 #include "cip/model/model_file.h"
 #include "cip/topology/cube_topology.h"
+#include "support/model_bytes.h"
 
 namespace {
 
@@ -91,7 +92,7 @@ DenseGrid stressGrid(std::uint32_t seed, bool withNaN) {
 }
 
 std::vector<std::uint8_t> bytes(const cip::Model& m) {
-  return cip::serializeModel(m);
+  return cip::test::modelBytes(m);
 }
 
 void expectSameModels(const DenseGrid& g, cip::BuildOptions o) {

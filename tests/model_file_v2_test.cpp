@@ -240,7 +240,7 @@ TEST(ModelFileV2, FittedCellsThatAmplifyRoundingKeepFinerCodes) {
   const Model plain = parseModel(plainBytes.data(), plainBytes.size()),
               stored = parseModel(bytes.data(), bytes.size());
   DisplacementOptions rays;
-  rays.raysPerAxis = test::kSanitizedBuild ? 2 : 4;
+  rays.raysPerAxis = test::kSanitizedBuild ? 1 : 4;
   const double plainMax = measureModelDisplacement(m, plain, rays).distanceVoxels.max,
                storedMax = measureModelDisplacement(m, stored, rays).distanceVoxels.max;
   std::printf("plain codes: %zu bytes, distance max %.3g voxel; refined: %zu bytes, %.3g voxel\n",
@@ -288,12 +288,18 @@ TEST(ModelFileV2, SparseVolumeModelsRoundTripBitForBit) {
   const std::string path = test::sharedData("vdb/sphere.vdb");
   if (!std::filesystem::exists(path)) GTEST_SKIP() << path << " is not there";
   const SparseVolume v = readVolume(path);
+  // Under the sanitizers the bricks of one octant of the grid only: an eighth of the sphere, still with the
+  // grid's other cells left out around it.
+  std::vector<GridBrick> bricks;
+  for (const GridBrick& b : v.bricks)
+    if (!test::kSanitizedBuild || std::max({b.offset[0], b.offset[1], b.offset[2]}) < v.geometry.dims[0] / 2)
+      bricks.push_back(b);
   for (PatchMethod method : {PatchMethod::Fitted, PatchMethod::Paper}) {
     SCOPED_TRACE(toString(method));
     BuildOptions o;
     o.isovalue = 0;
     o.method = method;
-    const Model built = buildModel(v.geometry, v.bricks, o, "sphere");
+    const Model built = buildModel(v.geometry, bricks, o, "sphere");
     ASSERT_GT(built.cells.size(), 1000u);
     for (int brick : test::kSanitizedBuild ? std::vector<int>{16} : std::vector<int>{64, 16}) {
       SCOPED_TRACE(brick);

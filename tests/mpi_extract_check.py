@@ -48,6 +48,8 @@ def check_identical(args, tmp):
         if name in skip:
             continue
         for method in ("fitted", "paper"):
+            if f"{name}:{method}" in skip:
+                continue
             plain = os.path.join(tmp, f"{name}-{method}.cip")
             base = [args.extract] + inp + ["--method", method, "--quiet", "--threads", "1"]
             r = run(base + ["-o", plain])
@@ -160,7 +162,8 @@ def main():
     p.add_argument("--root", required=True)
     p.add_argument("--ranks", default="1,2,3")
     p.add_argument("--part", choices=["identical", "failures"], default="identical")
-    p.add_argument("--skip", default="", help="comma-separated case names to leave out (e.g. tooth)")
+    p.add_argument("--skip", default="",
+                   help="comma-separated cases (e.g. tooth) or case:method pairs (e.g. vdb-sphere:paper) to leave out")
     args = p.parse_args()
     args.ranks = [int(n) for n in args.ranks.split(",")]
     with tempfile.TemporaryDirectory() as tmp:

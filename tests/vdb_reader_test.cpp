@@ -19,6 +19,7 @@
 #include "cip/model/model_builder.h"
 #include "cip/model/model_file.h"
 #include "cip/readers/volume_reader.h"
+#include "support/model_bytes.h"
 #include "support/sanitized_build.h"
 #include "support/volume_files.h"
 
@@ -158,7 +159,7 @@ TEST(VdbReader, SphereLevelSet) {
   DenseGrid whole = densify(v, *tree, tree->evalActiveVoxelBoundingBox().min() - openvdb::Coord(1, 1, 1));
   whole.description = "sphere";
   ASSERT_GT(sparse.cells.size(), 1000u);
-  EXPECT_EQ(serializeModel(sparse), serializeModel(buildModel(whole, opt)));
+  EXPECT_EQ(test::modelBytes(sparse), test::modelBytes(buildModel(whole, opt)));
   {
     opt.reconstruction = Reconstruction::Central8;
     VdbReadOptions wide = o;
@@ -167,10 +168,13 @@ TEST(VdbReader, SphereLevelSet) {
     SparseVolume w = readVdb(path, wide);
     ASSERT_EQ(w.bricks.size(), v.bricks.size());
     checkBricks(w, *tree, wide.apron);
-    const auto central8 = serializeModel(buildModel(w.geometry, w.bricks, opt, "sphere"));
-    EXPECT_EQ(central8, serializeModel(buildModel(whole, opt)));
+    const auto central8 = test::modelBytes(buildModel(w.geometry, w.bricks, opt, "sphere"));
+    EXPECT_EQ(central8, test::modelBytes(buildModel(whole, opt)));
     // With the default apron the bricks extend their own samples, and the model differs near their seams.
-    EXPECT_NE(central8, serializeModel(buildModel(v.geometry, v.bricks, opt, "sphere")));
+    // (The sanitizer run takes that path in FittedPatches.BricksJoinContinuously.)
+    if (!test::kSanitizedBuild) {
+      EXPECT_NE(central8, test::modelBytes(buildModel(v.geometry, v.bricks, opt, "sphere")));
+    }
     opt.reconstruction = Reconstruction::Monotone;
   }
 
@@ -228,13 +232,13 @@ TEST(VdbReader, SmokeFogVolume) {
   }
   checkBricks(v, *tree);
   BuildOptions opt;
-  opt.isovalue = test::kSanitizedBuild ? 0.5 : 0.1;  // 81,532 cells instead of 224,812 under the sanitizers
+  opt.isovalue = test::kSanitizedBuild ? 3 : 0.1;  // 11,541 cells instead of 224,812 under the sanitizers
   opt.threads = 2;
   Model sparse = buildModel(v.geometry, v.bricks, opt, "smoke");
   DenseGrid whole = densify(v, *tree, tree->evalActiveVoxelBoundingBox().min() - openvdb::Coord(1, 1, 1));
   whole.description = "smoke";
   EXPECT_GT(sparse.cells.size(), 1000u);
-  EXPECT_EQ(serializeModel(sparse), serializeModel(buildModel(whole, opt)));
+  EXPECT_EQ(test::modelBytes(sparse), test::modelBytes(buildModel(whole, opt)));
   // The range is that of the tree's values: its largest active density, and its background (0), which the
   // inactive voxels of the box hold, below every active one.
   float activeMin = std::numeric_limits<float>::infinity(), activeMax = -activeMin;

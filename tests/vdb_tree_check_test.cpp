@@ -15,6 +15,7 @@
 
 #include "cip/core/error.h"
 #include "cip/readers/vdb_reader.h"
+#include "support/sanitized_build.h"
 #include "support/volume_files.h"
 
 // OpenVDB leaks a node when it gives up on some corrupt trees (docs/reliability.md); that is not cip's to
@@ -240,13 +241,23 @@ TEST(VdbTreeCheck, SingleByteCorruptionsGiveErrorsNotCrashes) {
     return nullptr;
   };
 
+  // Under the sanitizers the upper node's masks (8192 of the file's bytes, each rejected like the next) are
+  // inverted at every 16th byte and at each byte with a bit set; every other byte of the file still is.
+  const Range& masks = mustReject.back();
+  auto tried = [&](std::size_t i) {
+    return !test::kSanitizedBuild || i < masks.begin || i >= masks.end || (i - masks.begin) % 16 == 0 ||
+           bytes[i] != 0;
+  };
   int read = 0, rejected = 0, treeErrors = 0;
+  std::size_t mustRejectBytes = 0;
   for (std::size_t i = 0; i < bytes.size(); ++i) {
+    if (!tried(i)) continue;
     std::string corrupt = bytes;
     corrupt[i] = static_cast<char>(~corrupt[i]);
     test::writeAll(path, corrupt);
     const Range* reject = in(mustReject, i);
     const Range* keep = in(mustReadAsBefore, i);
+    mustRejectBytes += reject != nullptr;
     try {
       [[maybe_unused]] LeaksIgnored ignored;
       const SparseVolume v = readVdb(path);
@@ -263,8 +274,6 @@ TEST(VdbTreeCheck, SingleByteCorruptionsGiveErrorsNotCrashes) {
       EXPECT_EQ(keep, nullptr) << "byte " << i << " of " << (keep ? keep->what : "") << ": " << m;
     }
   }
-  std::size_t mustRejectBytes = 0;
-  for (const Range& r : mustReject) mustRejectBytes += r.end - r.begin;
   EXPECT_GE(rejected, static_cast<int>(mustRejectBytes));
   EXPECT_GT(read, 0);        // some bytes are data the checks cannot judge (values inside compressed chunks)
   EXPECT_GT(treeErrors, 0);  // some corruptions reach the tree's chunk sizes

@@ -10,6 +10,7 @@
 #include "cip/model/model_file.h"
 #include "cip/readers/nifti_reader.h"
 #include "cip/readers/nrrd_reader.h"
+#include "support/model_bytes.h"
 #include "support/scratch_dir.h"
 #include "support/volume_files.h"
 
@@ -77,8 +78,8 @@ TEST(VolumeReader, NrrdAsOneBrick) {
   opt.isovalue = 120;
   opt.threads = 2;
   DenseGrid g = readNrrd(sharedData("tooth.nhdr"));
-  EXPECT_EQ(serializeModel(buildModel(v.geometry, v.bricks, opt, v.description)),
-            serializeModel(buildModel(g, opt)));
+  EXPECT_EQ(test::modelBytes(buildModel(v.geometry, v.bricks, opt, v.description)),
+            test::modelBytes(buildModel(g, opt)));
 }
 
 TEST(VolumeReader, RawNeedsFormat) {
