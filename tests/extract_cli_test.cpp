@@ -49,6 +49,15 @@ std::vector<std::uint8_t> numbersOf(Model m) {
   return serializeModel(m);
 }
 
+/// numbersOf the model a file written from `built` holds: what numbersOf of a model read from extract's file
+/// is compared with. A model read back and written again is the same model, but not always the same bytes as
+/// the first write (two codes can decode to the same number: docs/model-format.md), so a read model is
+/// compared with a read model.
+std::vector<std::uint8_t> storedNumbersOf(const Model& built) {
+  const std::vector<std::uint8_t> bytes = serializeModel(built);
+  return numbersOf(parseModel(bytes.data(), bytes.size()));
+}
+
 }  // namespace
 
 // The fitted build's fallback counts reach the stats file and, when cells stay unresolved, standard error;
@@ -134,7 +143,7 @@ TEST(ExtractCli, ReconstructionChoosesTheReference) {
     const Model& expected = std::string(kind) == "monotone" ? monotoneModel : central8Model;
     const Model written = readModel(model);
     EXPECT_EQ(written.reconstruction, expected.reconstruction);  // recorded in the file
-    EXPECT_TRUE(numbersOf(written) == numbersOf(expected));
+    EXPECT_TRUE(numbersOf(written) == storedNumbersOf(expected));
     const std::string text = test::slurp(json);
     EXPECT_NE(text.find("\"reconstruction\": \"" + std::string(kind) + "\""), std::string::npos) << text;
     EXPECT_NE(text.find(std::string("\"reconstruction\": \"") + toString(*expected.reconstruction) + "\""),
@@ -158,7 +167,7 @@ TEST(ExtractCli, ReconstructionChoosesTheReference) {
   const Model single = buildModel(v.geometry, v.bricks, o, "");
   const Model bricked = readModel(vdbModel);
   ASSERT_EQ(bricked.cells.size(), single.cells.size());
-  EXPECT_TRUE(numbersOf(bricked) == numbersOf(single));
+  EXPECT_TRUE(numbersOf(bricked) == storedNumbersOf(single));
 
   r = test::run(kExtract + " torus --resolution 16 --reconstruction sinc -o " + dir.file("x.cip"));
   EXPECT_NE(r.status, 0);
