@@ -11,6 +11,7 @@
 #include "cip/model/patch_fitting.h"
 #include "cip/volume/analytic_field.h"
 #include "support/join_tolerances.h"
+#include "support/model_bytes.h"
 #include "support/random_volume.h"
 #include "support/volume_blocks.h"
 #include "support/volume_files.h"
@@ -26,11 +27,11 @@ FittingStats expectJoinedAndThreadIndependent(const DenseGrid& grid, BuildOption
   o.fittingStats = &stats;
   o.threads = 1;
   const Model model = buildModel(grid, o);
-  const std::vector<std::uint8_t> bytes = serializeModel(model);
+  const std::vector<std::uint8_t> bytes = test::modelBytes(model);
   const FittingStats one = stats;
   for (int threads : {2, 7}) {
     o.threads = threads;
-    EXPECT_EQ(serializeModel(buildModel(grid, o)), bytes) << threads << " threads";
+    EXPECT_EQ(test::modelBytes(buildModel(grid, o)), bytes) << threads << " threads";
     EXPECT_EQ(stats.rounds, one.rounds) << threads << " threads";
     EXPECT_EQ(stats.blendedVertices, one.blendedVertices) << threads << " threads";
     EXPECT_EQ(stats.unresolvedCells, one.unresolvedCells) << threads << " threads";

@@ -14,6 +14,7 @@
 #include "cip/model/model_file.h"
 #include "cip/model/patch_fitting.h"
 #include "cip/reference/reconstruction_choice.h"
+#include "support/model_bytes.h"
 
 using namespace cip;
 
@@ -191,7 +192,7 @@ TEST(MaskReference, AutoKeepsTheChoiceOnContinuousData) {
   const Reconstruction chosen = chooseReconstruction(estimateSampling(g, 0.0));
   EXPECT_EQ(*automatic.reconstruction, chosen);
   options.reconstruction = chosen;
-  EXPECT_EQ(serializeModel(buildModel(g, options)), serializeModel(automatic));
+  EXPECT_EQ(test::modelBytes(buildModel(g, options)), test::modelBytes(automatic));
 }
 
 // Two labels that fill the grid between them (a ball of label 1 in label 2): their models have the same
@@ -237,7 +238,7 @@ TEST(MaskReference, ThreadCountChangesNoByte) {
   BuildOptions options;
   options.isovalue = 127.5;
   options.threads = 1;
-  const std::vector<std::uint8_t> one = serializeModel(buildModel(m, options));
+  const std::vector<std::uint8_t> one = test::modelBytes(buildModel(m, options));
   options.threads = 2;
-  EXPECT_EQ(serializeModel(buildModel(m, options)), one);
+  EXPECT_EQ(test::modelBytes(buildModel(m, options)), one);
 }

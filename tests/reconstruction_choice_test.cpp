@@ -12,6 +12,7 @@
 #include "cip/model/patch_fitting.h"
 #include "cip/readers/volume_reader.h"
 #include "cip/volume/analytic_field.h"
+#include "support/model_bytes.h"
 #include "support/volume_files.h"
 
 using namespace cip;
@@ -99,13 +100,13 @@ TEST(SamplingEstimate, AutoBuildsWithTheChosenReconstruction) {
     FittingStats stats;
     o.fittingStats = &stats;
     const Model model = buildModel(g, o);
-    const auto automatic = serializeModel(model);
+    const auto automatic = test::modelBytes(model);
     EXPECT_EQ(stats.reconstruction, expected) << name;
     EXPECT_EQ(model.reconstruction, expected) << name;  // recorded in the model (file) too
     EXPECT_EQ(stats.sampling.cells, estimateSampling(g, o.isovalue).cells) << name;
     EXPECT_NEAR(stats.sampling.wavelength, estimateSampling(g, o.isovalue).wavelength, 1e-9) << name;
     o.reconstruction = expected;
-    EXPECT_EQ(automatic, serializeModel(buildModel(g, o))) << name;
+    EXPECT_EQ(automatic, test::modelBytes(buildModel(g, o))) << name;
     EXPECT_EQ(stats.reconstruction, expected);
     EXPECT_EQ(stats.sampling.cells, 0);  // nothing estimated when the choice is given
     // No reference of the samples, none recorded: the paper's construction, and exact normals.
