@@ -364,6 +364,7 @@ struct ChunkTopology {
   std::vector<std::array<std::int32_t, 3>> fine;  ///< per owned vertex (or empty): the finer parts of its
                                                   ///< t code and normal code (u, v), refined vertices only
   bool isRefined(std::size_t v) const { return !refined.empty() && refined[v]; }
+  std::uint8_t refinedState(std::size_t v) const { return refined.empty() ? std::uint8_t(0) : refined[v]; }
 };
 
 void setupChunk(const Layout& L, const I3& brick, ChunkTopology& ch) {
@@ -1958,15 +1959,13 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
             const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
             ChunkTopology& out = chunks.list[i];
             NormalCodeInput& last = lastInput[ch.vertexBase + v];
-            const NormalCodeInput now{b.px[k], b.py[k], b.pz[k],
-                                      out.refined.empty() ? std::uint8_t(0) : out.refined[v],
-                                      ch.vertexFlags[v]};
+            const NormalCodeInput now{b.px[k], b.py[k], b.pz[k], out.refinedState(v), out.vertexFlags[v]};
             if (last.sameAs(now)) {
               if (!out.refined.empty()) out.refined[v] = last.refinedAfter;
             } else {
               refinedNormalCode(out, v, Vec3(now.px, now.py, now.pz), mv.normal, nStep, c[0], c[1]);
               last = now;
-              last.refinedAfter = out.refined.empty() ? std::uint8_t(0) : out.refined[v];
+              last.refinedAfter = out.refinedState(v);
               last.valid = 1;
             }
             sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;

@@ -5,7 +5,6 @@
 #include <cmath>
 
 #include "cip/core/vector_clones.h"
-#include "cip/topology/cube_topology.h"
 
 namespace cip {
 
@@ -103,18 +102,17 @@ void latticeValues(const Lattice& L, const CornerPatch& patch, std::array<double
                    std::array<double, kLatticePoints>& magnitude) {
   value.fill(0.0);
   magnitude.fill(0.0);
-  for (int c = 0; c < patch.numCorners; ++c) {
-    const auto ef = cube::edgeFaces(patch.edge[c]);
-    const unsigned mask = patch.faceMask & ~((1u << ef[0]) | (1u << ef[1]));
-    addCornerTerm(patch.weight[c], patch.normal[c], patch.point[c], L, L.product[mask].data(), value.data(),
-                  magnitude.data());
+  std::array<PatchTerm, CornerPatch::kMaxTerms> terms;
+  const int n = patch.terms(terms);
+  for (int i = 0; i < n; ++i) {
+    const PatchTerm& term = terms[static_cast<std::size_t>(i)];
+    const double* t = L.product[term.faceSquares].data();
+    if (term.corner >= 0)
+      addCornerTerm(term.coefficient, patch.normal[term.corner], patch.point[term.corner], L, t, value.data(),
+                    magnitude.data());
+    else
+      addTerm(term.coefficient, t, value.data(), magnitude.data());
   }
-  for (int f = 0; f < 6; ++f)
-    if ((patch.faceMask >> f) & 1)
-      addTerm(patch.faceCoefficient[f], L.product[patch.faceMask & ~(1u << f)].data(), value.data(),
-              magnitude.data());
-  if (patch.central != 0)
-    addTerm(patch.central, L.product[patch.faceMask].data(), value.data(), magnitude.data());
 }
 
 }  // namespace
