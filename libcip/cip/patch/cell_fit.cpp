@@ -443,12 +443,26 @@ int openFaceSamples(const LinearTerms& terms, int f, bool positive, double* r, d
 constexpr int kLattice = CellAxis::n * CellAxis::n * CellAxis::n;
 constexpr int kStaggered = StaggeredCellAxis::n * StaggeredCellAxis::n * StaggeredCellAxis::n;
 constexpr int kOpen = 6 * kOpenFaceSamples;
+/// The lattice on which a coefficient chosen with the open faces' samples is checked
+/// (CellFit::verifyOpenFaces): 1/16 apart, border included.
+struct DenseFaceAxis {
+  static constexpr int n = 17;
+  static constexpr double coord(int i) { return i / 16.0; }
+};
+/// How close to an open face, relative to its samples' magnitudes, a patch must come for a value that passes
+/// the samples to be checked between them (CellFit::closeToOpenFace).
+constexpr double kCloseToOpenFace = 0.1;
+/// Checks of verifyOpenFaces per solve; each adds at most one sample per open face.
+constexpr int kVerifyRounds = 3;
+/// Room for the samples verifyOpenFaces adds, after the open faces' and after the staggered lattice's.
+constexpr int kVerified = 2 * 6 * kVerifyRounds;
 
 /// The samples of one cell's central coefficient and the tests the constraint solver asks of them. Samples:
 /// the inset cell lattice, then the samples of each of the cell's faces that are not bounding planes (no
 /// crossing on their edges: the cell across has no patch there or none that joins this one, so a wrong sign
-/// anywhere on such a face is a hole; openFaceSamples). After them, where the cell lattice suggests it
-/// (secondLook), the staggered lattice.
+/// anywhere on such a face is a hole; openFaceSamples) and the points between them where a value dipped
+/// through such a face (verifyOpenFaces). After them, where the cell lattice suggests it (secondLook), the
+/// staggered lattice (and again such points).
 class CellFit {
  public:
   CellFit(const CornerPatch& patch, std::uint8_t config, const CellReference& ref);
@@ -470,11 +484,16 @@ class CellFit {
   }
   SignedCoefficient joinOpenFaces(SignConstraintSolver& solver, SignConstraintSolver& latticeOnly,
                                   double fitted, const SignedCoefficient& lattice, int& used);
+  /// Solves with the first `end` samples, then, while the value dips through an open face between the
+  /// samples (verifyOpenFaces), with those points too; `end` grows by the points added.
+  SignedCoefficient solveVerified(SignConstraintSolver& solver, double fitted, int& end);
   CellResult secondLook(SignConstraintSolver& solver, SignConstraintSolver& latticeOnly, double fitted,
                         const SignedCoefficient& before, int used);
 
  private:
   static int fitAxisOf(const CornerPatch& patch);
+  int verifyOpenFaces(double w, int end);
+  bool closeToOpenFace(double w) const;
   bool staggeredSample(int i) const {
     return staggeredBegin_ >= 0 && i >= staggeredBegin_ && i < staggeredBegin_ + kStaggered;
   }
@@ -508,7 +527,7 @@ class CellFit {
   LinearTerms terms_;
   PatchLines<CellAxis> lines_;
   LatticeLayout cellLayout_;
-  std::array<double, kLattice + kOpen + kStaggered> r_, value_, basis_;  // set as they are used
+  std::array<double, kLattice + kOpen + kStaggered + kVerified> r_, value_, basis_;  // set as they are used
   // The open faces' samples, face after face (the first OpenFaceAxis::n^2 of each are its lattice).
   int count_ = kLattice, numOpen_ = 0;
   std::array<std::array<int, 2>, 6> open_;  // face, first sample
@@ -633,11 +652,92 @@ int CellFit::gatherAgreeing() {
   return kept;
 }
 
-/// The open faces' samples join where the lattice's coefficient fails one of them. Where no value meets
-/// them with the lattice (the reference crosses an open face or bulges towards it with sign structure the
-/// cell's loops do not have, as on Marschner-Lobb, or the patch without the central term is too far off
-/// there), the open faces' lattice points count only where the reference has the corners' sign too, and
-/// only where they lie away from its surface, as the cell lattice's do. Where not even those can be met,
+/// The open faces' samples are a lattice 1/3 apart, and a patch that the lattice pulls towards an open face
+/// can dip through it between them (a hole the samples do not see). Where the coefficient `w` gives the
+/// patch the other sign than the face's corners at a point of an open face's DenseFaceAxis lattice where
+/// the central basis C > 0, the point of the face where the bound -s A / C of w is highest, by a compass
+/// search from the worst such lattice point, is written as one more sample at index `end` on. Returns the
+/// end of the samples. (The samples' sign is the corners': r of the face's first open sample.)
+int CellFit::verifyOpenFaces(double w, int end) {
+  constexpr int n = DenseFaceAxis::n;
+  for (int k = 0; k < numOpen_ && end < static_cast<int>(r_.size()); ++k) {
+    const auto [f, firstSample] = open_[static_cast<std::size_t>(k)];
+    const double sign = r_[static_cast<std::size_t>(firstSample)];
+    std::array<double, n * n> a, c;
+    patchFaceLattice<DenseFaceAxis>(terms_, f, a.data(), c.data());
+    int worst = -1;
+    double best = 0;
+    for (int i = 0; i < n * n; ++i) {
+      const double ai = a[static_cast<std::size_t>(i)], ci = c[static_cast<std::size_t>(i)];
+      if (!(ci > 0) || sign * (ai + w * ci) > 0) continue;
+      if (worst < 0 || -sign * ai / ci > best) worst = i, best = -sign * ai / ci;
+    }
+    if (worst < 0) continue;
+    FacePatch face;
+    face.set(terms_, f);
+    double u = DenseFaceAxis::coord(worst % n), v = DenseFaceAxis::coord(worst / n);
+    auto [bestA, bestC] = face.at(u, v);
+    for (double step = 0.5 / (n - 1); step > 1e-4;) {
+      bool moved = false;
+      for (int dir = 0; dir < 4; ++dir) {
+        const double uu = std::clamp(u + (dir == 0 ? step : dir == 1 ? -step : 0.0), 0.0, 1.0);
+        const double vv = std::clamp(v + (dir == 2 ? step : dir == 3 ? -step : 0.0), 0.0, 1.0);
+        const auto [aa, cc] = face.at(uu, vv);
+        if (cc > 0 && -sign * aa / cc > best) {
+          best = -sign * aa / cc, u = uu, v = vv, bestA = aa, bestC = cc;
+          moved = true;
+        }
+      }
+      if (!moved) step *= 0.5;
+    }
+    const auto i = static_cast<std::size_t>(end++);
+    r_[i] = sign, value_[i] = bestA, basis_[i] = bestC;
+  }
+  return end;
+}
+
+/// Whether, with coefficient `w`, the patch comes close to the other sign on an open face: at one of the
+/// face's regular samples where the central basis C > 0 (the rows kNearEdge inside the border left out, where
+/// the patch starts from 0 on an edge with a bounding plane) its value with the corners' sign is below
+/// kCloseToOpenFace times the largest magnitude of the regular samples, border included. Elsewhere the
+/// samples pass with room and the dips verifyOpenFaces looks for are rare (checked in every cell, those found
+/// came below 0.01 on the torus at N = 64, 16 of 16, and below 0.1 in 3 of 7 on the smoke at 0.1 and 1 of 1
+/// on the CT head at 1150).
+bool CellFit::closeToOpenFace(double w) const {
+  constexpr int n = OpenFaceAxis::n;
+  for (int k = 0; k < numOpen_; ++k) {
+    const int first = open_[static_cast<std::size_t>(k)][1];
+    double low = std::numeric_limits<double>::infinity(), high = 0;
+    for (int j = 0; j < n * n; ++j) {
+      const int a = j % n, b = j / n;
+      if (a == 1 || a == n - 2 || b == 1 || b == n - 2) continue;
+      const auto i = static_cast<std::size_t>(first + j);
+      const double v = r_[i] * (value_[i] + w * basis_[i]);
+      if (basis_[i] > 0) low = std::min(low, v);
+      high = std::max(high, std::abs(v));
+    }
+    if (low < kCloseToOpenFace * high) return true;
+  }
+  return false;
+}
+
+SignedCoefficient CellFit::solveVerified(SignConstraintSolver& solver, double fitted, int& end) {
+  SignedCoefficient sc = solver.solve(fitted, samples(end), farTest(), confirmFarTest());
+  for (int round = 0; sc.feasible && round < kVerifyRounds && closeToOpenFace(sc.value); ++round) {
+    const int before = end;
+    end = verifyOpenFaces(sc.value, end);
+    if (end == before) break;
+    sc = solver.solve(fitted, samples(end), farTest(), confirmFarTest());
+  }
+  return sc;
+}
+
+/// The open faces' samples join where the lattice's coefficient fails one of them, or where it dips through
+/// an open face between them (verifyOpenFaces), and every value chosen with them is checked so too. Where no
+/// value meets them with the lattice (the reference crosses an open face or bulges towards it with sign
+/// structure the cell's loops do not have, as on Marschner-Lobb, or the patch without the central term is too
+/// far off there), the open faces' lattice points count only where the reference has the corners' sign too,
+/// and only where they lie away from its surface, as the cell lattice's do. Where not even those can be met,
 /// the lattice decides. Either way the patch may cross the face there, a hole (docs/method.md, "Holes");
 /// failing the cell instead makes the fallback rounds blend normals, which spread failures (Marschner-Lobb
 /// at N = 32 exact: 16 more unresolved cells, 144 blended isovertices and 0.3 degrees more normal error).
@@ -651,9 +751,16 @@ SignedCoefficient CellFit::joinOpenFaces(SignConstraintSolver& solver, SignConst
   const bool openFails = count_ > kLattice &&
                          slackSweep({&r_[kLattice], &value_[kLattice], &basis_[kLattice], count_ - kLattice},
                                     lattice.value, failing.data()) > 0;
-  if (!openFails) return sc;
+  if (!openFails) {
+    // The samples pass; the patch may still dip through an open face between them where it comes close to
+    // the face (closeToOpenFace).
+    if (!closeToOpenFace(lattice.value)) return sc;
+    const int end = verifyOpenFaces(lattice.value, count_);
+    if (end == count_) return sc;
+    count_ = end;
+  }
   latticeOnly = solver;
-  sc = solver.solve(fitted, samples(count_), farTest(), confirmFarTest());
+  sc = solveVerified(solver, fitted, count_);
   used = count_;
   if (!sc.feasible) {
     solver = latticeOnly;
@@ -682,7 +789,11 @@ CellResult CellFit::secondLook(SignConstraintSolver& solver, SignConstraintSolve
   staggeredBegin_ = used;
   referenceCellLattice<StaggeredCellAxis>(ref_, fitAxis_, r_.data() + staggeredBegin_);
   staggeredLines_->lattice(value_.data() + staggeredBegin_, basis_.data() + staggeredBegin_);
-  SignedCoefficient sc = solver.solve(fitted, samples(used + kStaggered), farTest(), confirmFarTest());
+  // With the open faces' own samples, checked between them as in joinOpenFaces (after the staggered lattice).
+  int end = used + kStaggered;
+  SignedCoefficient sc = used > kLattice && !softOpen_
+                             ? solveVerified(solver, fitted, end)
+                             : solver.solve(fitted, samples(end), farTest(), confirmFarTest());
   if (!sc.feasible && used > kLattice) {
     std::copy_n(r_.data() + staggeredBegin_, kStaggered, r_.data() + kLattice);
     std::copy_n(value_.data() + staggeredBegin_, kStaggered, value_.data() + kLattice);
