@@ -358,6 +358,31 @@ class FacePatch {
   int centralPair_;
 };
 
+/// A point (u, v) of a face, the bound -s A / C of the central coefficient there and A, C.
+struct FacePeak {
+  double u, v, bound, a, c;
+};
+
+/// A compass search from `start` for where the bound -sign A / C of the central coefficient on `face` is
+/// highest, steps halving from `step` to `minStep`, kept on the face.
+FacePeak climbBound(const FacePatch& face, double sign, FacePeak start, double step, double minStep) {
+  FacePeak p = start;
+  while (step > minStep) {
+    bool moved = false;
+    for (int dir = 0; dir < 4; ++dir) {
+      const double u = std::clamp(p.u + (dir == 0 ? step : dir == 1 ? -step : 0.0), 0.0, 1.0);
+      const double v = std::clamp(p.v + (dir == 2 ? step : dir == 3 ? -step : 0.0), 0.0, 1.0);
+      const auto [a, c] = face.at(u, v);
+      if (c > 0 && -sign * a / c > p.bound) {
+        p = {u, v, -sign * a / c, a, c};
+        moved = true;
+      }
+    }
+    if (!moved) step *= 0.5;
+  }
+  return p;
+}
+
 /// Samples that openFaceSamples writes at most per face: the lattice, a point next to each lattice point of
 /// the border and the end of one search per edge.
 constexpr int kOpenFaceSamples = OpenFaceAxis::n * OpenFaceAxis::n + 4 * OpenFaceAxis::n + 4;
@@ -416,20 +441,8 @@ int openFaceSamples(const LinearTerms& terms, int f, bool positive, double* r, d
         best = -sign * aa / cc, bu = p.x(), bv = p.y(), ba = aa, bc = cc, ridgeStep = d;
     }
     if (!(ridgeStep > 0)) continue;
-    for (double step = 0.5 * ridgeStep; step > 1e-3 * ridgeStep;) {
-      bool moved = false;
-      for (int dir = 0; dir < 4; ++dir) {
-        const double uu = std::clamp(bu + (dir == 0 ? step : dir == 1 ? -step : 0.0), 0.0, 1.0);
-        const double vv = std::clamp(bv + (dir == 2 ? step : dir == 3 ? -step : 0.0), 0.0, 1.0);
-        const auto [aa, cc] = face.at(uu, vv);
-        if (cc > 0 && -sign * aa / cc > best) {
-          best = -sign * aa / cc, bu = uu, bv = vv, ba = aa, bc = cc;
-          moved = true;
-        }
-      }
-      if (!moved) step *= 0.5;
-    }
-    add(ba, bc);
+    const FacePeak peak = climbBound(face, sign, {bu, bv, best, ba, bc}, 0.5 * ridgeStep, 1e-3 * ridgeStep);
+    add(peak.a, peak.c);
   }
   std::fill(r, r + n * n, sign);
   // On an edge with a bounding plane C = 0, and the side coefficients decide (uncrossedEdgeSamples): the
@@ -675,23 +688,11 @@ int CellFit::verifyOpenFaces(double w, int end) {
     if (worst < 0) continue;
     FacePatch face;
     face.set(terms_, f);
-    double u = DenseFaceAxis::coord(worst % n), v = DenseFaceAxis::coord(worst / n);
-    auto [bestA, bestC] = face.at(u, v);
-    for (double step = 0.5 / (n - 1); step > 1e-4;) {
-      bool moved = false;
-      for (int dir = 0; dir < 4; ++dir) {
-        const double uu = std::clamp(u + (dir == 0 ? step : dir == 1 ? -step : 0.0), 0.0, 1.0);
-        const double vv = std::clamp(v + (dir == 2 ? step : dir == 3 ? -step : 0.0), 0.0, 1.0);
-        const auto [aa, cc] = face.at(uu, vv);
-        if (cc > 0 && -sign * aa / cc > best) {
-          best = -sign * aa / cc, u = uu, v = vv, bestA = aa, bestC = cc;
-          moved = true;
-        }
-      }
-      if (!moved) step *= 0.5;
-    }
+    const double u = DenseFaceAxis::coord(worst % n), v = DenseFaceAxis::coord(worst / n);
+    const auto [a0, c0] = face.at(u, v);
+    const FacePeak peak = climbBound(face, sign, {u, v, best, a0, c0}, 0.5 / (n - 1), 1e-4);
     const auto i = static_cast<std::size_t>(end++);
-    r_[i] = sign, value_[i] = bestA, basis_[i] = bestC;
+    r_[i] = sign, value_[i] = peak.a, basis_[i] = peak.c;
   }
   return end;
 }
