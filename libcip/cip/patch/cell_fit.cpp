@@ -463,7 +463,7 @@ struct DenseFaceAxis {
   static constexpr double coord(int i) { return i / 16.0; }
 };
 /// How close to an open face, relative to its samples' magnitudes, a patch must come for a value that passes
-/// the samples to be checked between them (CellFit::closeToOpenFace).
+/// the samples to be checked between them (CellFit::closeOpenFaces).
 constexpr double kCloseToOpenFace = 0.1;
 /// Checks of verifyOpenFaces per solve; each adds at most one sample per open face.
 constexpr int kVerifyRounds = 3;
@@ -505,8 +505,8 @@ class CellFit {
 
  private:
   static int fitAxisOf(const CornerPatch& patch);
-  int verifyOpenFaces(double w, int end);
-  bool closeToOpenFace(double w) const;
+  int verifyOpenFaces(double w, int end, unsigned faces);
+  unsigned closeOpenFaces(double w) const;
   bool staggeredSample(int i) const {
     return staggeredBegin_ >= 0 && i >= staggeredBegin_ && i < staggeredBegin_ + kStaggered;
   }
@@ -669,11 +669,13 @@ int CellFit::gatherAgreeing() {
 /// can dip through it between them (a hole the samples do not see). Where the coefficient `w` gives the
 /// patch the other sign than the face's corners at a point of an open face's DenseFaceAxis lattice where
 /// the central basis C > 0, the point of the face where the bound -s A / C of w is highest, by a compass
-/// search from the worst such lattice point, is written as one more sample at index `end` on. Returns the
-/// end of the samples. (The samples' sign is the corners': r of the face's first open sample.)
-int CellFit::verifyOpenFaces(double w, int end) {
+/// search from the worst such lattice point, is written as one more sample at index `end` on; only the open
+/// faces of `faces` (bit k: the k-th) are checked. Returns the end of the samples. (The samples' sign is the
+/// corners': r of the face's first open sample.)
+int CellFit::verifyOpenFaces(double w, int end, unsigned faces) {
   constexpr int n = DenseFaceAxis::n;
   for (int k = 0; k < numOpen_ && end < static_cast<int>(r_.size()); ++k) {
+    if (!((faces >> k) & 1)) continue;
     const auto [f, firstSample] = open_[static_cast<std::size_t>(k)];
     const double sign = r_[static_cast<std::size_t>(firstSample)];
     std::array<double, n * n> a, c;
@@ -697,15 +699,16 @@ int CellFit::verifyOpenFaces(double w, int end) {
   return end;
 }
 
-/// Whether, with coefficient `w`, the patch comes close to the other sign on an open face: at one of the
-/// face's regular samples where the central basis C > 0 (the rows kNearEdge inside the border left out, where
-/// the patch starts from 0 on an edge with a bounding plane) its value with the corners' sign is below
-/// kCloseToOpenFace times the largest magnitude of the regular samples, border included. Elsewhere the
-/// samples pass with room and the dips verifyOpenFaces looks for are rare (checked in every cell, those found
-/// came below 0.01 on the torus at N = 64, 16 of 16, and below 0.1 in 3 of 7 on the smoke at 0.1 and 1 of 1
-/// on the CT head at 1150).
-bool CellFit::closeToOpenFace(double w) const {
+/// The open faces (bit k: the k-th) on which, with coefficient `w`, the patch comes close to the other sign:
+/// at one of the face's regular samples where the central basis C > 0 (the rows kNearEdge inside the border
+/// left out, where the patch starts from 0 on an edge with a bounding plane) its value with the corners' sign
+/// is below kCloseToOpenFace times the largest magnitude of the regular samples, border included. Elsewhere
+/// the samples pass with room and the dips verifyOpenFaces looks for are rare (checked in every cell, those
+/// found came below 0.01 on the torus at N = 64, 16 of 16, and below 0.1 in 3 of 7 on the smoke at 0.1 and 1
+/// of 1 on the CT head at 1150).
+unsigned CellFit::closeOpenFaces(double w) const {
   constexpr int n = OpenFaceAxis::n;
+  unsigned close = 0;
   for (int k = 0; k < numOpen_; ++k) {
     const int first = open_[static_cast<std::size_t>(k)][1];
     double low = std::numeric_limits<double>::infinity(), high = 0;
@@ -717,16 +720,18 @@ bool CellFit::closeToOpenFace(double w) const {
       if (basis_[i] > 0) low = std::min(low, v);
       high = std::max(high, std::abs(v));
     }
-    if (low < kCloseToOpenFace * high) return true;
+    if (low < kCloseToOpenFace * high) close |= 1u << k;
   }
-  return false;
+  return close;
 }
 
 SignedCoefficient CellFit::solveVerified(SignConstraintSolver& solver, double fitted, int& end) {
   SignedCoefficient sc = solver.solve(fitted, samples(end), farTest(), confirmFarTest());
-  for (int round = 0; sc.feasible && round < kVerifyRounds && closeToOpenFace(sc.value); ++round) {
+  for (int round = 0; sc.feasible && round < kVerifyRounds; ++round) {
+    const unsigned close = closeOpenFaces(sc.value);
+    if (!close) break;
     const int before = end;
-    end = verifyOpenFaces(sc.value, end);
+    end = verifyOpenFaces(sc.value, end, close);
     if (end == before) break;
     sc = solver.solve(fitted, samples(end), farTest(), confirmFarTest());
   }
@@ -754,9 +759,10 @@ SignedCoefficient CellFit::joinOpenFaces(SignConstraintSolver& solver, SignConst
                                     lattice.value, failing.data()) > 0;
   if (!openFails) {
     // The samples pass; the patch may still dip through an open face between them where it comes close to
-    // the face (closeToOpenFace).
-    if (!closeToOpenFace(lattice.value)) return sc;
-    const int end = verifyOpenFaces(lattice.value, count_);
+    // the face (closeOpenFaces).
+    const unsigned close = closeOpenFaces(lattice.value);
+    if (!close) return sc;
+    const int end = verifyOpenFaces(lattice.value, count_, close);
     if (end == count_) return sc;
     count_ = end;
   }
