@@ -398,16 +398,24 @@ int runOne(const Options& opt, const Input& in, cip::BuildOptions options, cip::
   const std::vector<std::uint8_t> bytes = cip::serializeModel(model, fileOptions);
   stats.bytesWritten[opt.output] = cip::writeModelBytes(bytes, opt.output);
   stats.seconds["write_model"] = secondsSince(t2);
+  // The surface as stored is read back only for what measures or meshes it. The summary and the statistics
+  // give counts (cells, isovertices, corners, loops), the grid and the reconstruction, which the file holds
+  // as built (format 2 quantises positions, normals and coefficients, never the topology): they come from the
+  // built model otherwise, and read_back_model is then 0.
+  const bool readBack = opt.checkStorage || opt.checkHoles || !opt.mcMesh.empty() || !opt.patchMesh.empty();
   auto t3 = Clock::now();
-  cip::Model stored = cip::parseModel(bytes.data(), bytes.size(), opt.output);
-  stats.seconds["read_back_model"] = secondsSince(t3);
+  cip::Model stored = readBack ? cip::parseModel(bytes.data(), bytes.size(), opt.output) : cip::Model();
+  stats.seconds["read_back_model"] = readBack ? secondsSince(t3) : 0.0;
   stats.modelVersion = opt.modelVersion;
   if (opt.checkStorage) checkStorage(opt, model, stored, stats);
   if (opt.checkHoles) checkHoles(opt, stored, stats);
-  model = cip::Model();
-  writeMeshes(opt, stored, stats);
-  if (!opt.quiet) printSummary(opt, options, stored, stats);
-  if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, stored);
+  if (readBack) {
+    model = cip::Model();
+    writeMeshes(opt, stored, stats);
+  }
+  const cip::Model& described = readBack ? stored : model;
+  if (!opt.quiet) printSummary(opt, options, described, stats);
+  if (!opt.statsJson.empty()) cip::writeExtractStats(opt.statsJson, stats, described);
   return 0;
 }
 

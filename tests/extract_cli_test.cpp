@@ -365,6 +365,31 @@ TEST(ExtractCli, CheckStorageReportsHowFarTheStoredSurfaceMoves) {
   EXPECT_EQ(r.err.find("storage:"), std::string::npos) << r.err;
 }
 
+// Without a measure or a mesh of the stored surface, extract does not read its file back: the statistics'
+// model block (counts, loops, reconstruction) and the world box, which the file keeps as built, are the same
+// as when it does, and are those of the file read back.
+TEST(ExtractCli, StatsWithoutReadingTheModelBackDescribeTheFile) {
+  test::ScratchDir dir;
+  const std::string plain = dir.file("plain.json"), readBack = dir.file("back.json"),
+                    model = dir.file("b.cip");
+  const std::string common = kExtract + " " + test::sourceFile("data/blobs.nrrd") + " --iso 128 -o " + model;
+  test::CommandResult r = test::run(common + " --stats-json " + plain);
+  ASSERT_EQ(r.status, 0) << r.err;
+  r = test::run(common + " --check-holes --stats-json " + readBack);
+  ASSERT_EQ(r.status, 0) << r.err;
+  const nlohmann::json a = nlohmann::json::parse(test::slurp(plain));
+  const nlohmann::json b = nlohmann::json::parse(test::slurp(readBack));
+  EXPECT_EQ(a["seconds"]["read_back_model"], 0.0);
+  EXPECT_GT(b["seconds"]["read_back_model"].get<double>(), 0.0);
+  EXPECT_EQ(a["model"], b["model"]);
+  EXPECT_EQ(a["world"], b["world"]);
+  EXPECT_EQ(a["fitting"], b["fitting"]);
+  const Model stored = readModel(model);
+  EXPECT_EQ(a["model"]["non_empty_cells"], stored.cells.size());
+  EXPECT_EQ(a["model"]["isovertices"], stored.vertices.size());
+  EXPECT_EQ(a["model"]["corners"], stored.corners.size());
+}
+
 // --check-holes lists the cells of the model as written whose patch leaks through an open face, as the
 // library's measure finds them in the file read back; the bundled volume has a few (docs/method.md, "Holes"),
 // the sphere none; without the flag the key is absent.

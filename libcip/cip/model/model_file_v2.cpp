@@ -711,6 +711,10 @@ double refinedT(std::uint16_t tCode, std::int32_t fine, double scale, int bits) 
   return static_cast<double>((static_cast<std::int64_t>(tCode) << bits) + fine) * std::ldexp(scale, -bits);
 }
 
+bool sameBits(double a, double b) {
+  return std::memcmp(&a, &b, sizeof a) == 0;
+}
+
 /// The vertices' positions (index coordinates) from their crossing parameters, or kept in full precision.
 void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
   const double scale = 1.0 / maxTCode(positionBits);
@@ -730,6 +734,28 @@ void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
       const int axis = static_cast<int>(ch.vertexKey[v] % 3);
       const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
       m.vertices[ch.vertexBase + v].position[axis] = static_cast<double>(p[axis]) + ch.exactT[k];
+    }
+  });
+}
+
+/// placeVertices for a model whose vertices were placed before and whose weights are set: puts only the
+/// positions that the chunks' codes now give differently (a vertex refined since), leaves the weights, and
+/// flags the vertices it moved in `moved` (global vertex order, sized by the caller).
+void movePlacedVertices(const Chunks& chunks, int positionBits, Model& m, std::vector<std::uint8_t>& moved) {
+  const double scale = 1.0 / maxTCode(positionBits);
+  tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
+    const ChunkTopology& ch = chunks.list[i];
+    for (std::size_t v = 0, e = 0; v < ch.vertexKey.size(); ++v) {
+      const int axis = static_cast<int>(ch.vertexKey[v] % 3);
+      const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
+      double t = static_cast<double>(p[axis]);
+      t += ch.isRefined(v) ? refinedT(ch.tCode[v], ch.fine[v][0], scale, ch.refineBits) : ch.tCode[v] * scale;
+      while (e < ch.exact.size() && ch.exact[e] < v) ++e;
+      if (e < ch.exact.size() && ch.exact[e] == v) t = static_cast<double>(p[axis]) + ch.exactT[e];
+      double& now = m.vertices[ch.vertexBase + v].position[axis];
+      if (sameBits(now, t)) continue;
+      now = t;
+      moved[ch.vertexBase + v] = 1;
     }
   });
 }
@@ -1062,15 +1088,22 @@ void decodeBlock(NormalBlock& b) {
 /// residuals (u, v: the codes times the step) from its predictions and frames (the reader reads the codes,
 /// the writer chooses them). The normals are decoded when `decode` (a writer needs them only for `paper`
 /// models); then the full-precision normals are put.
+/// With `only` (global vertex order), the blocks with no flagged vertex are left as they are.
 template <class CodeOf>
 void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbours>& around, bool decode,
-                   CodeOf&& codeOf) {
+                   CodeOf&& codeOf, const std::vector<std::uint8_t>* only = nullptr) {
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
     auto code = codeOf(i);
     NormalBlock b;
     for (std::size_t first = 0; first < ch.vertexKey.size(); first += NormalBlock::kSize) {
       b.count = std::min(NormalBlock::kSize, ch.vertexKey.size() - first);
+      if (only) {
+        const auto from = only->begin() + static_cast<std::ptrdiff_t>(ch.vertexBase + first);
+        if (std::find(from, from + static_cast<std::ptrdiff_t>(b.count), std::uint8_t{1}) ==
+            from + static_cast<std::ptrdiff_t>(b.count))
+          continue;
+      }
       sumBlock(m, around, ch, first, b);
       predictBlock(b);
       code(first, b);
@@ -1508,11 +1541,14 @@ struct MovingCells {
   std::vector<IsoVertex>
       vertices;  ///< the stored vertices when last estimated (empty before the first round)
   std::vector<std::uint8_t> moving;  ///< per cell, whether the last estimate found it moving
+  /// The stored side coefficient of each face of the file and whether it was refined. Fitted models code
+  /// their sides against no prediction, so a later round codes again only the faces whose refinement changed;
+  /// paper models' predictions change with their corners, so every face is coded again.
+  std::vector<double> side;
+  std::vector<std::uint8_t> sideRefined;
+  /// Whether each cell's central coefficient was stored refined (its stored value is sk's).
+  std::vector<std::uint8_t> centralRefined;
 };
-
-bool sameBits(double a, double b) {
-  return std::memcmp(&a, &b, sizeof a) == 0;
-}
 
 /// The coefficients a writer stores with kFineCoefficientBits more bits (fitted models: those of the cells
 /// whose surface the plain codes would move too far): per model cell its central coefficient, per face of the
@@ -1548,14 +1584,26 @@ void estimateMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, 
                          const std::vector<ChunkSource>& sources, const std::vector<double>& prediction,
                          const ModelFileV2Options& q, const FineCoefficients& fine, MovingCells& last) {
   const double threshold = m.method == PatchMethod::Paper ? kPaperShiftTarget : kFittedShiftTarget;
-  std::vector<double> side(prediction.size(), 0.0);
+  const bool first = last.vertices.empty();
+  if (first) {
+    last.side.assign(prediction.size(), 0.0);
+    last.sideRefined.assign(prediction.size(), 0);
+    last.centralRefined.assign(sk.cells.size(), 0);
+  }
+  // A face's stored value is a function of its coefficient, prediction and refinement: coded again only where
+  // the last two may have changed (every face the first time), the same numbers as coding every face.
+  const bool everyFace = first || m.method == PatchMethod::Paper;
+  std::vector<double>& side = last.side;
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const std::uint64_t base = chunks.list[i].faceBase;
-    for (std::size_t f = 0; f < sources[i].side.size(); ++f)
-      side[base + f] = storedCoefficient(sources[i].side[f], prediction[base + f], q.sideStep, q.sideMantissa,
-                                         !fine.face.empty() && fine.face[base + f]);
+    for (std::size_t f = 0; f < sources[i].side.size(); ++f) {
+      const std::size_t k = base + f;
+      const std::uint8_t refined = !fine.face.empty() && fine.face[k];
+      if (!everyFace && refined == last.sideRefined[k]) continue;
+      side[k] = storedCoefficient(sources[i].side[f], prediction[k], q.sideStep, q.sideMantissa, refined);
+      last.sideRefined[k] = refined;
+    }
   });
-  const bool first = last.vertices.empty();
   std::vector<std::uint8_t> vertexChanged(first ? 0 : sk.vertices.size());
   if (!first)
     tbb::parallel_for(std::size_t(0), sk.vertices.size(), [&](std::size_t v) {
@@ -1575,13 +1623,20 @@ void estimateMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, 
       changed = changed || !sameBits(w, cell.faceCoefficient[f]);
       cell.faceCoefficient[f] = w;
     }
-    const double central = storedCoefficient(m.cells[c].central, 0.0, q.centralStep, q.centralMantissa,
-                                             !fine.cell.empty() && fine.cell[c]);
-    changed = changed || !sameBits(central, cell.central);
-    cell.central = central;
+    const std::uint8_t refined = !fine.cell.empty() && fine.cell[c];
+    if (first || refined != last.centralRefined[c]) {
+      const double central =
+          storedCoefficient(m.cells[c].central, 0.0, q.centralStep, q.centralMantissa, refined);
+      changed = changed || !sameBits(central, cell.central);
+      cell.central = central;
+      last.centralRefined[c] = refined;
+    }
     for (int k = 0; !changed && k < cell.numCorners(); ++k)
       changed = vertexChanged[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]] != 0;
-    if (changed) moving[c] = surfaceShiftExceeds(m.patch(c), sk.patch(c), threshold);
+    if (!changed) return;
+    // sk holds the same cells as m (configurations and pairings): their loops once for both patches.
+    const CellLoops loops = m.loops(c);
+    moving[c] = surfaceShiftExceeds(m.patch(c, loops), sk.patch(c, loops), threshold);
   });
   last.vertices = sk.vertices;
 }
@@ -1883,6 +1938,108 @@ FineCoefficients refineCells(const Model& m, Model& sk, const CellFaces& cellFac
   return fine;
 }
 
+/// The writer's normal codes against the reader's predictions, and the normals (and weights) a reader will
+/// have, put in `sk`: code() codes every vertex, recode() after a round of refined corners only what can
+/// change.
+class NormalCoder {
+ public:
+  NormalCoder(const Model& m, Model& sk, Chunks& chunks, const std::vector<ChunkSource>& sources,
+              const std::vector<LoopNeighbours>& around, int positionBits, double step, bool weights)
+      : codes(sk.vertices.size(), {0, 0}),
+        m_(m),
+        sk_(sk),
+        chunks_(chunks),
+        sources_(sources),
+        around_(around),
+        positionBits_(positionBits),
+        step_(step),
+        weights_(weights),
+        lastInput_(sk.vertices.size()) {}
+
+  std::vector<std::array<std::int64_t, 2>> codes;  ///< per vertex of the file, its normal code (u, v)
+
+  /// Codes the vertices of the blocks with a vertex flagged in `only` (global vertex order), or of all.
+  void code(const std::vector<std::uint8_t>* only) {
+    decodeNormals(
+        sk_, chunks_, around_, true,
+        [&](std::size_t i) {
+          return [this, i](std::size_t first, NormalBlock& b) { codeBlock(i, first, b); };
+        },
+        only);
+  }
+
+  /// After a round of refined corners only some vertices' normals can change: those that moved, those whose
+  /// prediction (from their loop neighbours' positions) moved with them, and those refined since their last
+  /// code. Their blocks are coded and decoded again; every other block would repeat its last codes and
+  /// normals bit for bit.
+  void recode() {
+    std::vector<std::uint8_t> moved(sk_.vertices.size(), 0), again(sk_.vertices.size(), 0);
+    movePlacedVertices(chunks_, positionBits_, sk_, moved);
+    tbb::parallel_for(std::size_t(0), chunks_.list.size(), [&](std::size_t i) {
+      const ChunkTopology& ch = chunks_.list[i];
+      for (std::size_t v = 0; v < ch.vertexKey.size(); ++v) {
+        const std::size_t g = ch.vertexBase + v;
+        bool touched = moved[g] != 0;
+        const LoopNeighbours& nbr = around_[g];
+        for (int s = 0; s < 4 && !touched; ++s) {
+          const std::uint32_t next = nbr.v[static_cast<std::size_t>(2 * s)];
+          touched = next != kNone && (moved[next] || moved[nbr.v[static_cast<std::size_t>(2 * s + 1)]]);
+        }
+        // A vertex whose refinement is as its last code left it keeps that code: searched again from the
+        // same prediction, refinedNormalCode gives the same code and refinement (from refinement 2 it ended
+        // at 0 with a code that decodes to the normal exactly, which stableNormalCode keeps, or at the code
+        // of its own last search).
+        const NormalCodeInput& last = lastInput_[g];
+        touched = touched ||
+                  (sources_[i].vertex[v] >= 0 && !(last.valid && last.refinedAfter == ch.refinedState(v) &&
+                                                   last.flags == ch.vertexFlags[v]));
+        again[g] = touched;
+      }
+    });
+    code(&again);
+  }
+
+ private:
+  const Model& m_;
+  Model& sk_;
+  Chunks& chunks_;
+  const std::vector<ChunkSource>& sources_;
+  const std::vector<LoopNeighbours>& around_;
+  int positionBits_;
+  double step_;
+  bool weights_;
+  std::vector<NormalCodeInput> lastInput_;
+
+  /// Chooses the codes of a block of chunk i's vertices from their predictions (a vertex whose prediction,
+  /// refinement and flags are as at its last search keeps its code) and sets the block's residuals.
+  void codeBlock(std::size_t i, std::size_t first, NormalBlock& b) {
+    ChunkTopology& ch = chunks_.list[i];
+    for (std::size_t k = 0; k < b.count; ++k) {
+      const std::size_t v = first + k;
+      const std::int64_t mvi = sources_[i].vertex[v];
+      std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
+      if (mvi >= 0) {
+        const IsoVertex& mv = m_.vertices[static_cast<std::size_t>(mvi)];
+        NormalCodeInput& last = lastInput_[ch.vertexBase + v];
+        const NormalCodeInput now{b.px[k], b.py[k], b.pz[k], ch.refinedState(v), ch.vertexFlags[v]};
+        if (last.sameAs(now)) {
+          if (!ch.refined.empty()) ch.refined[v] = last.refinedAfter;
+        } else {
+          refinedNormalCode(ch, v, Vec3(now.px, now.py, now.pz), mv.normal, step_, c[0], c[1]);
+          last = now;
+          last.refinedAfter = ch.refinedState(v);
+          last.valid = 1;
+        }
+        sk_.vertices[ch.vertexBase + v].weight = weights_ ? mv.weight : 1.0;
+      }
+      // A refined vertex's code is in steps 2^-refineBits as fine.
+      const double step = ch.isRefined(v) ? std::ldexp(step_, -ch.refineBits) : step_;
+      b.u[k] = static_cast<double>(c[0]) * step;
+      b.v[k] = static_cast<double>(c[1]) * step;
+    }
+  }
+};
+
 }  // namespace
 
 ModelFileV2Options ModelFileV2Options::forMethod(PatchMethod method) {
@@ -1944,47 +2101,12 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   if (m.method == PatchMethod::Fitted) flags |= kCentralsStored;
   for (const IsoVertex& v : m.vertices)
     if (v.weight != 1.0) flags |= kWeightsStored;
-  // Normal codes against the prediction, and the normals (and weights) a reader will have.
-  std::vector<std::array<std::int64_t, 2>> codes(sk.vertices.size(), {0, 0});
-  std::vector<NormalCodeInput> lastInput(sk.vertices.size());
-  auto codeNormals = [&] {
-    decodeNormals(sk, chunks, around, true, [&](std::size_t i) {
-      return [&, i](std::size_t first, NormalBlock& b) {
-        const ChunkTopology& ch = chunks.list[i];
-        for (std::size_t k = 0; k < b.count; ++k) {
-          const std::size_t v = first + k;
-          const std::int64_t mvi = sources[i].vertex[v];
-          std::array<std::int64_t, 2>& c = codes[ch.vertexBase + v];
-          if (mvi >= 0) {
-            const IsoVertex& mv = m.vertices[static_cast<std::size_t>(mvi)];
-            ChunkTopology& out = chunks.list[i];
-            NormalCodeInput& last = lastInput[ch.vertexBase + v];
-            const NormalCodeInput now{b.px[k], b.py[k], b.pz[k], out.refinedState(v), out.vertexFlags[v]};
-            if (last.sameAs(now)) {
-              if (!out.refined.empty()) out.refined[v] = last.refinedAfter;
-            } else {
-              refinedNormalCode(out, v, Vec3(now.px, now.py, now.pz), mv.normal, nStep, c[0], c[1]);
-              last = now;
-              last.refinedAfter = out.refinedState(v);
-              last.valid = 1;
-            }
-            sk.vertices[ch.vertexBase + v].weight = (flags & kWeightsStored) ? mv.weight : 1.0;
-          }
-          // A refined vertex's code is in steps 2^-refineBits as fine.
-          const double step = ch.isRefined(v) ? std::ldexp(nStep, -ch.refineBits) : nStep;
-          b.u[k] = static_cast<double>(c[0]) * step;
-          b.v[k] = static_cast<double>(c[1]) * step;
-        }
-      };
-    });
-  };
-  codeNormals();
+  NormalCoder coder(m, sk, chunks, sources, around, q.positionBits, nStep, (flags & kWeightsStored) != 0);
+  coder.code(nullptr);
   std::vector<double> sidePrediction =
       paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
-  const FineCoefficients fine = refineCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fb, [&] {
-    placeVertices(chunks, q.positionBits, sk);
-    codeNormals();
-  });
+  const FineCoefficients fine =
+      refineCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fb, [&] { coder.recode(); });
   if (!paper) {
     for (const ChunkTopology& ch : chunks.list)
       for (std::size_t v = 0; v < ch.vertexKey.size(); ++v)
@@ -1999,7 +2121,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
     ch.streams[kNormals].reserve(4 * ch.vertexKey.size());
     ch.streams[kSides].reserve(2 * src.side.size());
     ch.streams[kCentrals].reserve(2 * src.cell.size());
-    writeVertexStreams(ch, codes, sk, flags);
+    writeVertexStreams(ch, coder.codes, sk, flags);
     if (flags & kFineCoefficientsStored) writeFineCoefficients(ch, src, m, sidePrediction, q, fine);
     for (std::size_t f = 0; f < src.side.size(); ++f)
       putVarint(ch.streams[kSides], zigzag(coefficientCode(src.side[f] - sidePrediction[ch.faceBase + f],
