@@ -1088,10 +1088,12 @@ void decodeBlock(NormalBlock& b) {
 /// residuals (u, v: the codes times the step) from its predictions and frames (the reader reads the codes,
 /// the writer chooses them). The normals are decoded when `decode` (a writer needs them only for `paper`
 /// models); then the full-precision normals are put.
-/// With `only` (global vertex order), the blocks with no flagged vertex are left as they are.
+/// With `only` (global vertex order), the blocks with no flagged vertex are left as they are; with `changed`,
+/// the vertices whose normal it changes are flagged there.
 template <class CodeOf>
 void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbours>& around, bool decode,
-                   CodeOf&& codeOf, const std::vector<std::uint8_t>* only = nullptr) {
+                   CodeOf&& codeOf, const std::vector<std::uint8_t>* only = nullptr,
+                   std::vector<std::uint8_t>* changed = nullptr) {
   tbb::parallel_for(std::size_t(0), chunks.list.size(), [&](std::size_t i) {
     const ChunkTopology& ch = chunks.list[i];
     auto code = codeOf(i);
@@ -1125,8 +1127,13 @@ void decodeNormals(Model& m, const Chunks& chunks, const std::vector<LoopNeighbo
         b.keepX[k] = b.keepY[k] = b.keepZ[k] = -1;
       }
       decodeBlock(b);
-      for (std::size_t k = 0; k < b.count; ++k)
-        m.vertices[ch.vertexBase + first + k].normal = Vec3(b.nx[k], b.ny[k], b.nz[k]);
+      for (std::size_t k = 0; k < b.count; ++k) {
+        Vec3& normal = m.vertices[ch.vertexBase + first + k].normal;
+        if (changed && !(sameBits(normal.x(), b.nx[k]) && sameBits(normal.y(), b.ny[k]) &&
+                         sameBits(normal.z(), b.nz[k])))
+          (*changed)[ch.vertexBase + first + k] = 1;
+        normal = Vec3(b.nx[k], b.ny[k], b.nz[k]);
+      }
     }
     for (std::size_t k = 0; k < ch.exact.size(); ++k)
       m.vertices[ch.vertexBase + ch.exact[k]].normal = ch.exactNormal[k];
@@ -1538,9 +1545,7 @@ constexpr double kFittedShiftTarget = 0.003;
 /// whose stored patch changed: those around the corners the last round refined, and those whose normal or
 /// side predictions these moved. The other cells' estimates would repeat the last ones, number for number.
 struct MovingCells {
-  std::vector<IsoVertex>
-      vertices;  ///< the stored vertices when last estimated (empty before the first round)
-  std::vector<std::uint8_t> moving;  ///< per cell, whether the last estimate found it moving
+  std::vector<std::uint8_t> moving;  ///< per cell, whether the last estimate found it moving (empty before)
   /// The stored side coefficient of each face of the file and whether it was refined. Fitted models code
   /// their sides against no prediction, so a later round codes again only the faces whose refinement changed;
   /// paper models' predictions change with their corners, so every face is coded again.
@@ -1578,13 +1583,15 @@ double storedCoefficient(double w, double p, double step, int m, bool refined, s
 }
 
 /// Sets `sk`'s side and central coefficients to what a reader will decode, and estimates again the cells
-/// whose stored patch changed since the last call (every cell the first time): last.moving[c] says whether
-/// cell c's stored surface moves by more than the method's shift target (surfaceShiftExceeds).
+/// whose stored patch changed since the last call (every cell the first time; `vertexChanged` flags the
+/// vertices whose position or normal changed since, empty if none did): last.moving[c] says whether cell c's
+/// stored surface moves by more than the method's shift target (surfaceShiftExceeds).
 void estimateMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, const Chunks& chunks,
                          const std::vector<ChunkSource>& sources, const std::vector<double>& prediction,
-                         const ModelFileV2Options& q, const FineCoefficients& fine, MovingCells& last) {
+                         const ModelFileV2Options& q, const FineCoefficients& fine,
+                         const std::vector<std::uint8_t>& vertexChanged, MovingCells& last) {
   const double threshold = m.method == PatchMethod::Paper ? kPaperShiftTarget : kFittedShiftTarget;
-  const bool first = last.vertices.empty();
+  const bool first = last.moving.empty();
   if (first) {
     last.side.assign(prediction.size(), 0.0);
     last.sideRefined.assign(prediction.size(), 0);
@@ -1604,15 +1611,6 @@ void estimateMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, 
       last.sideRefined[k] = refined;
     }
   });
-  std::vector<std::uint8_t> vertexChanged(first ? 0 : sk.vertices.size());
-  if (!first)
-    tbb::parallel_for(std::size_t(0), sk.vertices.size(), [&](std::size_t v) {
-      const IsoVertex &a = sk.vertices[v], &b = last.vertices[v];
-      bool same = sameBits(a.weight, b.weight);
-      for (int i = 0; i < 3; ++i)
-        same = same && sameBits(a.position[i], b.position[i]) && sameBits(a.normal[i], b.normal[i]);
-      vertexChanged[v] = !same;
-    });
   last.moving.resize(sk.cells.size(), 0);
   std::vector<std::uint8_t>& moving = last.moving;
   tbb::parallel_for(std::size_t(0), sk.cells.size(), [&](std::size_t c) {
@@ -1631,14 +1629,13 @@ void estimateMovingCells(const Model& m, Model& sk, const CellFaces& cellFaces, 
       cell.central = central;
       last.centralRefined[c] = refined;
     }
-    for (int k = 0; !changed && k < cell.numCorners(); ++k)
+    for (int k = 0; !changed && !vertexChanged.empty() && k < cell.numCorners(); ++k)
       changed = vertexChanged[sk.corners[cell.firstCorner + static_cast<std::uint32_t>(k)]] != 0;
     if (!changed) return;
     // sk holds the same cells as m (configurations and pairings): their loops once for both patches.
     const CellLoops loops = m.loops(c);
     moving[c] = surfaceShiftExceeds(m.patch(c, loops), sk.patch(c, loops), threshold);
   });
-  last.vertices = sk.vertices;
 }
 
 /// Refines the corners of the cells estimateMovingCells found moving. Returns whether any vertex was newly
@@ -1919,12 +1916,14 @@ FineCoefficients refineCells(const Model& m, Model& sk, const CellFaces& cellFac
   const bool paper = m.method == PatchMethod::Paper;
   MovingCells moving;
   FineCoefficients fine;
+  std::vector<std::uint8_t> changed;  // the vertices the last recode moved or turned (none: empty)
   if (!paper) refineExactCoefficients(m, chunks, sources, q, faces, fine);
   for (int round = 0; q.refineMovingCells && round < 4; ++round) {
     if (paper && round == 0) {
       refineIllConditionedCells(m, sk, cellFaces, chunks, sources, sidePrediction, q.positionBits);
     } else {
-      estimateMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fine, moving);
+      estimateMovingCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fine, changed, moving);
+      changed.clear();
       if (!paper && round == 0) {
         refineMovingCoefficients(cellFaces, faces, moving.moving, fine);
         continue;  // the corners are as they were; the next round estimates the cells whose coefficients
@@ -1932,7 +1931,7 @@ FineCoefficients refineCells(const Model& m, Model& sk, const CellFaces& cellFac
       }
       if (!refineMovingCorners(m, sk, chunks, sources, q.positionBits, moving.moving)) break;
     }
-    recode();
+    changed = recode();
     if (paper) sidePrediction = paperSidePrediction(sk, cellFaces, faces);
   }
   return fine;
@@ -1959,20 +1958,20 @@ class NormalCoder {
   std::vector<std::array<std::int64_t, 2>> codes;  ///< per vertex of the file, its normal code (u, v)
 
   /// Codes the vertices of the blocks with a vertex flagged in `only` (global vertex order), or of all.
-  void code(const std::vector<std::uint8_t>* only) {
+  void code(const std::vector<std::uint8_t>* only, std::vector<std::uint8_t>* changed = nullptr) {
     decodeNormals(
         sk_, chunks_, around_, true,
         [&](std::size_t i) {
           return [this, i](std::size_t first, NormalBlock& b) { codeBlock(i, first, b); };
         },
-        only);
+        only, changed);
   }
 
   /// After a round of refined corners only some vertices' normals can change: those that moved, those whose
   /// prediction (from their loop neighbours' positions) moved with them, and those refined since their last
   /// code. Their blocks are coded and decoded again; every other block would repeat its last codes and
-  /// normals bit for bit.
-  void recode() {
+  /// normals bit for bit. Returns, per vertex, whether its position or normal changed.
+  std::vector<std::uint8_t> recode() {
     std::vector<std::uint8_t> moved(sk_.vertices.size(), 0), again(sk_.vertices.size(), 0);
     movePlacedVertices(chunks_, positionBits_, sk_, moved);
     tbb::parallel_for(std::size_t(0), chunks_.list.size(), [&](std::size_t i) {
@@ -1996,7 +1995,8 @@ class NormalCoder {
         again[g] = touched;
       }
     });
-    code(&again);
+    code(&again, &moved);
+    return moved;
   }
 
  private:
@@ -2106,7 +2106,7 @@ std::vector<std::uint8_t> serializeModelV2(const Model& m, const ModelFileV2Opti
   std::vector<double> sidePrediction =
       paper ? paperSidePrediction(sk, cellFaces, fb) : std::vector<double>(fb, 0.0);
   const FineCoefficients fine =
-      refineCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fb, [&] { coder.recode(); });
+      refineCells(m, sk, cellFaces, chunks, sources, sidePrediction, q, fb, [&] { return coder.recode(); });
   if (!paper) {
     for (const ChunkTopology& ch : chunks.list)
       for (std::size_t v = 0; v < ch.vertexKey.size(); ++v)
