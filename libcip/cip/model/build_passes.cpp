@@ -43,9 +43,7 @@ MaskRule maskRule(const BuildOptions& options) {
 
 DenseGrid maskField(const DenseGrid& samples, const BuildOptions& options, std::int64_t firstSliceZ) {
   if (!options.label) return smoothMask(samples, options.isovalue);
-  return smoothClass(
-      samples, [](double v) { return static_cast<std::int64_t>(std::llround(v)); }, *options.label,
-      firstSliceZ);
+  return smoothLabel(samples, *options.label, firstSliceZ);
 }
 
 BuildOptions maskFieldOptions(const BuildOptions& options) {

@@ -99,7 +99,7 @@ class TwoValuedVerdict {
   double below_ = 0, above_ = 0;
 };
 
-/// The field a mask's model is built from, of one brick's samples: smoothMask, or smoothClass of the label
+/// The field a mask's model is built from, of one brick's samples: smoothMask, or smoothLabel of the label
 /// (with its blocks placed along z as in the volume whose slice `firstSliceZ` is the brick's first).
 DenseGrid maskField(const DenseGrid& samples, const BuildOptions& options, std::int64_t firstSliceZ = 0);
 /// The options the mask's model is built with from maskField's bricks (Central8, the label's isovalue 0).

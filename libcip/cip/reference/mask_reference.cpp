@@ -10,6 +10,7 @@
 #include <cmath>
 #include <vector>
 
+#include "cip/core/vector_clones.h"
 #include "cip/reference/point_hermite.h"
 
 namespace cip {
@@ -73,9 +74,37 @@ std::int64_t clampIntoGrid(std::int64_t v, std::int64_t n) {
 struct BlockScratch {
   std::vector<std::int64_t> cls;                      ///< the region's classes
   std::vector<double> in, x, xy;                      ///< indicator, after the x pass, after x and y
+  std::vector<std::uint8_t> zeroX, zeroXY;            ///< rows of x and xy known to hold only zeros
   std::vector<double> sum[2];                         ///< the block's result per Gaussian
   std::vector<double> gap[2], next, mean[2], weight;  ///< the second pass's (blendBlock)
 };
+
+/// dst[i] = w[-R] src[i] + ... + w[R] src[i + 2R stride] for i < n, `src` at tap -R: added tap by tap in
+/// increasing order, the first product as it is (fromZero false) or added to +0 (true), as a pass that adds
+/// one tap at a time over the row gives them; columns a block at a time, so that the sums stay in registers
+/// instead of being stored and loaded again for every tap.
+template <bool fromZero>
+CIP_VECTOR_CLONES void tapRow(const double* w, int R, const double* src, std::ptrdiff_t stride, double* dst,
+                              std::int64_t n) {
+  constexpr std::int64_t kColumns = 8;
+  std::int64_t i0 = 0;
+  for (; i0 + kColumns <= n; i0 += kColumns) {
+    double acc[kColumns];
+    for (std::int64_t l = 0; l < kColumns; ++l)
+      acc[l] = fromZero ? 0.0 + w[-R] * src[i0 + l] : w[-R] * src[i0 + l];
+    for (int t = -R + 1; t <= R; ++t) {
+      const double wt = w[t];
+      const double* row = src + (t + R) * stride + i0;
+      for (std::int64_t l = 0; l < kColumns; ++l) acc[l] += wt * row[l];
+    }
+    for (std::int64_t l = 0; l < kColumns; ++l) dst[i0 + l] = acc[l];
+  }
+  for (std::int64_t i = i0; i < n; ++i) {
+    double acc = fromZero ? 0.0 + w[-R] * src[i] : w[-R] * src[i];
+    for (int t = -R + 1; t <= R; ++t) acc += w[t] * src[(t + R) * stride + i];
+    dst[i] = acc;
+  }
+}
 
 /// G * in over the block: `in` covers the region (dims r), the block starts at `o` in it (dims b), and the
 /// region reaches at least the kernel's radius beyond the block on every side (classBlock pads it by the
@@ -88,6 +117,7 @@ void separableBlur(const GaussianTaps& g, const std::vector<double>& in, const D
   const std::int64_t j0 = o[1] - R, j1 = o[1] + b[1] + R, k0 = o[2] - R, k1 = o[2] + b[2] + R;
   // x: region rows, block columns. A row of one value (most, away from the surface) stays that value.
   s.x.resize(static_cast<std::size_t>(b[0] * r[1] * r[2]));
+  s.zeroX.assign(static_cast<std::size_t>(r[1] * r[2]), 0);
   for (std::int64_t k = k0; k < k1; ++k)
     for (std::int64_t j = j0; j < j1; ++j) {
       const double* row = &in[static_cast<std::size_t>(r[0] * (j + r[1] * k))];
@@ -95,32 +125,43 @@ void separableBlur(const GaussianTaps& g, const std::vector<double>& in, const D
       const double* first = row + o[0] - R;
       if (std::all_of(first, row + o[0] + b[0] + R, [&](double v) { return v == *first; })) {
         std::fill(dst, dst + b[0], *first);
+        s.zeroX[static_cast<std::size_t>(j + r[1] * k)] = *first == 0;
         continue;
       }
-      for (std::int64_t i = 0; i < b[0]; ++i) dst[i] = w[-R] * first[i];
-      for (int t = -R + 1; t <= R; ++t) {
-        const double* src = row + o[0] + t;
-        for (std::int64_t i = 0; i < b[0]; ++i) dst[i] += w[t] * src[i];
-      }
+      tapRow<false>(w, R, first, 1, dst, b[0]);
     }
+  // The y and z passes start every sum at +0 and add w[t] src with w[t] > 0: where every source is a zero
+  // (of either sign) every partial sum is +0, which is what they write without the sums. Many rows and
+  // slices of a block's sparse inputs (a class's indicator far from it, the points next to a surface) are.
+  auto allZero = [](const std::uint8_t* flag, std::int64_t stride, int taps) {
+    for (int t = 0; t < taps; ++t)
+      if (!flag[t * stride]) return false;
+    return true;
+  };
   // y: block columns and rows, region slices.
   s.xy.resize(static_cast<std::size_t>(b[0] * b[1] * r[2]));
+  s.zeroXY.assign(static_cast<std::size_t>(b[1] * r[2]), 0);
   for (std::int64_t k = k0; k < k1; ++k)
     for (std::int64_t j = 0; j < b[1]; ++j) {
       double* dst = &s.xy[static_cast<std::size_t>(b[0] * (j + b[1] * k))];
-      std::fill(dst, dst + b[0], 0.0);
-      for (int t = -R; t <= R; ++t) {
-        const double* src = &s.x[static_cast<std::size_t>(b[0] * (o[1] + j + t + r[1] * k))];
-        for (std::int64_t i = 0; i < b[0]; ++i) dst[i] += w[t] * src[i];
+      if (allZero(&s.zeroX[static_cast<std::size_t>(o[1] + j - R + r[1] * k)], 1, 2 * R + 1)) {
+        std::fill(dst, dst + b[0], 0.0);
+        s.zeroXY[static_cast<std::size_t>(j + b[1] * k)] = 1;
+        continue;
       }
+      tapRow<true>(w, R, &s.x[static_cast<std::size_t>(b[0] * (o[1] + j - R + r[1] * k))], b[0], dst, b[0]);
     }
-  // z: the block.
-  out.assign(static_cast<std::size_t>(b[0] * b[1] * b[2]), 0.0);
+  // z: the block, row by row.
+  out.resize(static_cast<std::size_t>(b[0] * b[1] * b[2]));
   for (std::int64_t k = 0; k < b[2]; ++k)
-    for (int t = -R; t <= R; ++t) {
-      const double* src = &s.xy[static_cast<std::size_t>(b[0] * b[1] * (o[2] + k + t))];
-      double* dst = &out[static_cast<std::size_t>(b[0] * b[1] * k)];
-      for (std::int64_t n = 0; n < b[0] * b[1]; ++n) dst[n] += w[t] * src[n];
+    for (std::int64_t j = 0; j < b[1]; ++j) {
+      double* dst = &out[static_cast<std::size_t>(b[0] * (j + b[1] * k))];
+      if (allZero(&s.zeroXY[static_cast<std::size_t>(j + b[1] * (o[2] + k - R))], b[1], 2 * R + 1)) {
+        std::fill(dst, dst + b[0], 0.0);
+        continue;
+      }
+      tapRow<true>(w, R, &s.xy[static_cast<std::size_t>(b[0] * (j + b[1] * (o[2] + k - R)))], b[0] * b[1],
+                   dst, b[0]);
     }
 }
 
@@ -531,6 +572,11 @@ DenseGrid smoothMask(const DenseGrid& grid, double isovalue) {
 DenseGrid smoothClass(const DenseGrid& grid, const std::function<std::int64_t(double)>& classOf,
                       std::int64_t target, std::int64_t firstSliceZ) {
   return classField(grid, classOf, target, 0.0, firstSliceZ);
+}
+
+DenseGrid smoothLabel(const DenseGrid& grid, std::int64_t label, std::int64_t firstSliceZ) {
+  return classField(
+      grid, [](double v) { return static_cast<std::int64_t>(std::llround(v)); }, label, 0.0, firstSliceZ);
 }
 
 }  // namespace cip

@@ -88,4 +88,9 @@ DenseGrid smoothMask(const DenseGrid& grid, double isovalue);
 DenseGrid smoothClass(const DenseGrid& grid, const std::function<std::int64_t(double)>& classOf,
                       std::int64_t target, std::int64_t firstSliceZ = 0);
 
+/// smoothClass of a label map's label `label`, the samples rounded to the nearest integer (half away from
+/// zero) as their labels, with the rounding inlined rather than called through a std::function for every
+/// point.
+DenseGrid smoothLabel(const DenseGrid& grid, std::int64_t label, std::int64_t firstSliceZ = 0);
+
 }  // namespace cip
