@@ -715,6 +715,12 @@ bool sameBits(double a, double b) {
   return std::memcmp(&a, &b, sizeof a) == 0;
 }
 
+/// The crossing parameter along its edge that vertex v's codes give: the plain code, or a refined vertex's
+/// code with its finer part.
+double codedT(const ChunkTopology& ch, double scale, std::size_t v) {
+  return ch.isRefined(v) ? refinedT(ch.tCode[v], ch.fine[v][0], scale, ch.refineBits) : ch.tCode[v] * scale;
+}
+
 /// The vertices' positions (index coordinates) from their crossing parameters, or kept in full precision.
 void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
   const double scale = 1.0 / maxTCode(positionBits);
@@ -725,8 +731,7 @@ void placeVertices(const Chunks& chunks, int positionBits, Model& m) {
       const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
       IsoVertex& vx = m.vertices[ch.vertexBase + v];
       vx.position = Vec3(static_cast<double>(p[0]), static_cast<double>(p[1]), static_cast<double>(p[2]));
-      vx.position[axis] +=
-          ch.isRefined(v) ? refinedT(ch.tCode[v], ch.fine[v][0], scale, ch.refineBits) : ch.tCode[v] * scale;
+      vx.position[axis] += codedT(ch, scale, v);
       vx.weight = 1.0;
     }
     for (std::size_t k = 0; k < ch.exact.size(); ++k) {
@@ -748,8 +753,7 @@ void movePlacedVertices(const Chunks& chunks, int positionBits, Model& m, std::v
     for (std::size_t v = 0, e = 0; v < ch.vertexKey.size(); ++v) {
       const int axis = static_cast<int>(ch.vertexKey[v] % 3);
       const I3 p = keyPoint(ch, chunks.L.B, ch.vertexKey[v] / 3);
-      double t = static_cast<double>(p[axis]);
-      t += ch.isRefined(v) ? refinedT(ch.tCode[v], ch.fine[v][0], scale, ch.refineBits) : ch.tCode[v] * scale;
+      double t = static_cast<double>(p[axis]) + codedT(ch, scale, v);
       while (e < ch.exact.size() && ch.exact[e] < v) ++e;
       if (e < ch.exact.size() && ch.exact[e] == v) t = static_cast<double>(p[axis]) + ch.exactT[e];
       double& now = m.vertices[ch.vertexBase + v].position[axis];
