@@ -59,7 +59,7 @@ struct BuildOptions {
   Reconstruction reconstruction = Reconstruction::Auto;
   /// When set (with PatchMethod::Fitted): the surface of the grid points whose value rounds to this label,
   /// as a label map's; `isovalue` and `reconstruction` are ignored and the reference is the label's field
-  /// against the other labels (smoothClass, mask_reference.h), so that touching labels' surfaces meet.
+  /// against the other labels (smoothLabel, mask_reference.h), so that touching labels' surfaces meet.
   std::optional<std::int64_t> label;
   /// With PatchMethod::Fitted: receives how many rounds, blended normals and unresolved faces/cells it took,
   /// and the reconstruction used.

@@ -29,7 +29,7 @@ double secondsSince(Clock::time_point start) {
 
 /// The slabs of a volume: slab s owns the cell layers [starts[s], starts[s + 1]) along z and holds the points
 /// `halo` beyond them on either side, where the volume has them. A label map's field is computed in blocks
-/// whose result depends on the classes within the kernel's radius (smoothClass): its slabs hold, around their
+/// whose result depends on the classes within the kernel's radius (smoothLabel): its slabs hold, around their
 /// points and `halo`, the whole blocks of kMaskBlock slices (placed as in the volume) and the kernel's radius
 /// beyond them. Split between ranks, rank r owns slabs [rankFirst[r], rankFirst[r + 1]): its rankShare of the
 /// cell layers, cut into slabs of at most `cells` layers.

@@ -569,11 +569,6 @@ DenseGrid smoothMask(const DenseGrid& grid, double isovalue) {
       grid, [isovalue](double v) { return static_cast<std::int64_t>(v > isovalue); }, 1, isovalue);
 }
 
-DenseGrid smoothClass(const DenseGrid& grid, const std::function<std::int64_t(double)>& classOf,
-                      std::int64_t target, std::int64_t firstSliceZ) {
-  return classField(grid, classOf, target, 0.0, firstSliceZ);
-}
-
 DenseGrid smoothLabel(const DenseGrid& grid, std::int64_t label, std::int64_t firstSliceZ) {
   return classField(
       grid, [](double v) { return static_cast<std::int64_t>(std::llround(v)); }, label, 0.0, firstSliceZ);

@@ -29,7 +29,6 @@
 /// depend on the thread count.
 #pragma once
 #include <cstdint>
-#include <functional>
 
 #include "cip/volume/dense_grid.h"
 
@@ -77,20 +76,14 @@ TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue);
 /// isovalue + f: the grid to build a mask's model from with the same isovalue. Same geometry and description.
 DenseGrid smoothMask(const DenseGrid& grid, double isovalue);
 
-/// The field f_T of class `target` of a partition of the grid points into classes (`classOf` maps a sample
-/// to its class; a label map's labels, rounded), as samples f (isovalue 0): positive exactly at the points
-/// of class `target`. Beyond the grid each point takes the class of the nearest grid point.
-/// With three or more classes the field of a block depends on the classes met within the kernel's radius of
+/// The field f_L of label `label` of a label map (each sample rounded to the nearest integer, half away from
+/// zero, is its label), as samples f (isovalue 0): positive exactly at the points of that label. Beyond the
+/// grid each point takes the label of the nearest grid point.
+/// With three or more labels the field of a block depends on the labels met within the kernel's radius of
 /// it, so it depends on where blocks start: `firstSliceZ` is the z index of the grid's first slice in a
 /// larger grid that it is a slab of, and blocks start along z where they start in that grid (a slab holding
 /// the blocks within maskWeightRadius() of its points and the kernel's radius around them gives the larger
 /// grid's field there).
-DenseGrid smoothClass(const DenseGrid& grid, const std::function<std::int64_t(double)>& classOf,
-                      std::int64_t target, std::int64_t firstSliceZ = 0);
-
-/// smoothClass of a label map's label `label`, the samples rounded to the nearest integer (half away from
-/// zero) as their labels, with the rounding inlined rather than called through a std::function for every
-/// point.
 DenseGrid smoothLabel(const DenseGrid& grid, std::int64_t label, std::int64_t firstSliceZ = 0);
 
 }  // namespace cip
