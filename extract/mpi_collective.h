@@ -11,29 +11,28 @@ namespace cip {
 /// PMI's PMI_RANK in the environment). A plain run never initialises MPI and needs no MPI daemon.
 bool launchedByMpirun();
 
-/// MPI_COMM_WORLD as a Collective: MPI initialised by start() and finalised by the destructor.
+/// MPI_COMM_WORLD as a Collective. Open MPI is in the module libcip_mpi.so (mpi_world.cpp;
+/// cip/core/module_loader.h), loaded by start() only: a plain run does not load it.
 class MpiWorld : public Collective {
  public:
-  /// Initialises MPI. Throws cip::Error when extract was built without MPI (CIP_HAVE_MPI unset).
+  /// Loads the module and initialises MPI. Throws cip::Error when extract was built without MPI
+  /// (CIP_HAVE_MPI unset) or the module cannot be loaded.
   static std::unique_ptr<MpiWorld> start(int* argc, char*** argv);
-  ~MpiWorld() override;
-  int rank() const override { return rank_; }
-  int size() const override { return size_; }
-  std::vector<std::vector<std::uint8_t>> allgather(const std::vector<std::uint8_t>& mine) const override;
+  /// Finalises MPI.
+  ~MpiWorld() override = default;
   /// What this rank's allgathers moved so far: the bytes it sent and the seconds spent in them (waiting for
   /// the other ranks included), for --stats-json.
-  std::uint64_t bytesSent() const { return bytesSent_; }
-  double exchangeSeconds() const { return exchangeSeconds_; }
+  virtual std::uint64_t bytesSent() const = 0;
+  virtual double exchangeSeconds() const = 0;
   /// Waits until every rank got here (a rank that failed has called abort instead, ending them all).
-  void barrier() const;
+  virtual void barrier() const = 0;
   /// Ends every rank of the run with exit code `code` (MPI_Abort): a rank that fails takes the run down.
-  [[noreturn]] void abort(int code) const;
+  [[noreturn]] virtual void abort(int code) const = 0;
+};
 
- private:
-  MpiWorld() = default;
-  int rank_ = 0, size_ = 1;
-  mutable std::uint64_t bytesSent_ = 0;
-  mutable double exchangeSeconds_ = 0;
+/// What the module libcip_mpi.so gives start(), through its entry point cip_mpi_module.
+struct MpiModule {
+  MpiWorld* (*start)(int* argc, char*** argv);  ///< initialises MPI; the caller owns the world
 };
 
 }  // namespace cip

@@ -492,3 +492,42 @@ TEST(ExtractCli, MasksAndLabelMaps) {
   EXPECT_NE(r.status, 0);
   EXPECT_NE(r.err.find("label map (integer samples)"), std::string::npos) << r.err;
 }
+
+// OpenVDB, GDCM and Open MPI are loaded only when a run needs them (core/module_loader.h): extract itself
+// loads none of them, a volume in another format is read without their modules, and a VDB file or DICOM
+// series whose module cannot be found is a clear error and no output.
+TEST(ExtractCli, LargeLibrariesLoadOnlyWhenAFileNeedsThem) {
+  test::ScratchDir dir;
+  // What the dynamic linker loads for the program itself (LD_TRACE_LOADED_OBJECTS lists it, as ldd does).
+  auto r = test::run("{ LD_TRACE_LOADED_OBJECTS=1 " + kExtract + " 1>&2; }");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.err.find("libtbb"), std::string::npos) << r.err;
+  for (const char* library : {"libopenvdb", "libgdcm", "libmpi", "libboost"})
+    EXPECT_EQ(r.err.find(library), std::string::npos) << library << " is loaded by extract itself:\n"
+                                                      << r.err;
+
+  const std::string empty = dir.file("no-modules");
+  std::filesystem::create_directory(empty);
+  const std::string without = "CIP_MODULE_DIR='" + empty + "' " + kExtract + " ";
+  const std::string nucleon = test::sharedData("nucleon.nhdr"), plain = dir.file("plain.cip"),
+                    alone = dir.file("alone.cip");
+  r = test::run(kExtract + " " + nucleon + " --iso 128 -q -o " + plain);
+  ASSERT_EQ(r.status, 0) << r.err;
+  r = test::run(without + nucleon + " --iso 128 -q -o " + alone);
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_TRUE(test::slurp(plain) == test::slurp(alone));
+
+  const std::string dicom = dir.file("slice.dcm");
+  test::writeAll(dicom, std::string(128, '\0') + "DICM");
+  for (const auto& [input, module] : {std::pair{test::sharedData("vdb/sphere.vdb"), "libcip_vdb.so"},
+                                      std::pair{dicom, "libcip_dicom.so"}}) {
+    const std::string out = dir.file("out.cip");
+    r = test::run(without + input + " -q -o " + out);
+    EXPECT_EQ(r.status, 1) << r.err;
+    EXPECT_EQ(r.err.rfind("extract: error: " + input + ": ", 0), 0u) << r.err;
+    for (const std::string& part :
+         {std::string(module), empty + "/" + module + ": no such file", std::string("CIP_MODULE_DIR")})
+      EXPECT_NE(r.err.find(part), std::string::npos) << part << " not in: " << r.err;
+    EXPECT_FALSE(std::filesystem::exists(out));
+  }
+}

@@ -2,6 +2,7 @@
 agree with each other, progress, cancellation, the GIL released, and errors as exceptions."""
 import os
 import subprocess
+import sys
 import threading
 import _thread
 import time
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 import cip
-from conftest import gyroid, sphere
+from conftest import SOURCE_DIR, gyroid, sphere
 
 
 def test_file_input_gives_the_commands_model(tmp_path, extract_exe, blobs_path):
@@ -18,6 +19,21 @@ def test_file_input_gives_the_commands_model(tmp_path, extract_exe, blobs_path):
     model = cip.extract(blobs_path, 128)
     model.save(str(tmp_path / "py.cip"))
     assert (tmp_path / "cli.cip").read_bytes() == (tmp_path / "py.cip").read_bytes()
+
+
+def test_openvdb_is_loaded_only_to_read_a_vdb_file(tmp_path):
+    """import cip loads no OpenVDB (its reader is a module loaded on first use); reading a .vdb file loads it."""
+    source = os.path.join(SOURCE_DIR, "..", "shared", "data", "vdb", "sphere.vdb")
+    if not os.path.exists(source):
+        pytest.skip("no shared data beside the source tree")
+    script = ("import cip\n"
+              "def openvdb(): return any('libopenvdb' in line for line in open('/proc/self/maps'))\n"
+              "before = openvdb()\n"
+              "model = cip.extract(%r)\n"
+              "print(before, openvdb(), model.n_cells)\n" % source)
+    out = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True).stdout.split()
+    assert out[:2] == ["False", "True"]
+    assert int(out[2]) > 1000
 
 
 @pytest.mark.parametrize("method", ["fitted", "paper"])

@@ -28,4 +28,10 @@ namespace cip {
 /// Reads the DICOM series in the folder `path` (or the single DICOM slice file `path`).
 DenseGrid readDicom(const std::string& path, std::size_t maxBytes = DenseGrid::defaultMaxBytes());
 
+/// What the module libcip_dicom.so (modules/dicom_module.cpp, the only code that uses GDCM) gives readDicom,
+/// which loads it on first use through its entry point cip_dicom_reader_module (core/module_loader.h).
+struct DicomReaderModule {
+  DenseGrid (*read)(const std::string& path, std::size_t maxBytes);
+};
+
 }  // namespace cip

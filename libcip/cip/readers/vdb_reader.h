@@ -51,4 +51,12 @@ std::vector<VdbGridInfo> listVdbGrids(const std::string& path);
 /// grid without active voxels, an unsupported transform, or bricks over options.maxBytes.
 SparseVolume readVdb(const std::string& path, const VdbReadOptions& options = {});
 
+/// What the module libcip_vdb.so (modules/vdb_module.cpp, the only code that uses OpenVDB) gives the two
+/// functions above, which load it on first use through its entry point cip_vdb_reader_module
+/// (core/module_loader.h).
+struct VdbReaderModule {
+  std::vector<VdbGridInfo> (*listGrids)(const std::string& path);
+  SparseVolume (*read)(const std::string& path, const VdbReadOptions& options);
+};
+
 }  // namespace cip
