@@ -756,8 +756,12 @@ std::vector<CellLoops> assembleCells(const Input& in, const std::vector<CellRef>
   std::vector<CellLoops> loops(keepLoops ? cells.size() : 0);
   // Split between ranks: each assembles its share of the cells, then the ranks exchange them.
   const Collective* ranks = sharedBuild(in.options);
-  const auto [first, last] = ranks ? rankShare(cells.size(), ranks->rank(), ranks->size())
-                                   : std::make_pair(std::size_t(0), cells.size());
+  // Not a structured binding: the lambda below uses both ends, and capturing a binding needs C++20 (clang
+  // refuses it in C++17).
+  const std::pair<std::size_t, std::size_t> share =
+      ranks ? rankShare(cells.size(), ranks->rank(), ranks->size())
+            : std::make_pair(std::size_t(0), cells.size());
+  const std::size_t first = share.first, last = share.second;
   std::atomic<std::size_t> cellsDone{0};
   tbb::parallel_for(
       tbb::blocked_range<std::size_t>(first, last, 256), [&](const tbb::blocked_range<std::size_t>& r) {
