@@ -18,7 +18,7 @@ class MpiWorld : public Collective {
   /// Loads the module and initialises MPI. Throws cip::Error when extract was built without MPI
   /// (CIP_HAVE_MPI unset) or the module cannot be loaded.
   static std::unique_ptr<MpiWorld> start(int* argc, char*** argv);
-  /// Finalises MPI.
+  /// The module's world finalises MPI when it is destroyed.
   ~MpiWorld() override = default;
   /// What this rank's allgathers moved so far: the bytes it sent and the seconds spent in them (waiting for
   /// the other ranks included), for --stats-json.

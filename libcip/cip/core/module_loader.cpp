@@ -1,6 +1,7 @@
 #include "cip/core/module_loader.h"
 
 #include <dlfcn.h>
+#include <link.h>
 
 #include <cstdlib>
 #include <filesystem>
@@ -15,16 +16,17 @@ namespace cip {
 namespace {
 
 /// The program or shared object that holds this code (libcip is a static library): /proc/self/exe for a
-/// program, the shared object's own path for a module such as Python's _cip.so.
+/// program, whose link map has no name (dladdr would give argv[0], which need not be a path), and the shared
+/// object's own path for a module such as Python's _cip.so.
 std::filesystem::path holder() {
   std::error_code ec;
   Dl_info info{};
-  if (dladdr(reinterpret_cast<void*>(&holder), &info) && info.dli_fname && *info.dli_fname) {
-    auto path = std::filesystem::canonical(info.dli_fname, ec);
-    if (!ec && path != std::filesystem::canonical("/proc/self/exe", ec)) return path;
-  }
-  auto exe = std::filesystem::canonical("/proc/self/exe", ec);
-  return ec ? std::filesystem::path() : exe;
+  link_map* map = nullptr;
+  const bool found =
+      dladdr1(reinterpret_cast<void*>(&holder), &info, reinterpret_cast<void**>(&map), RTLD_DL_LINKMAP) != 0;
+  const char* self = found && map && map->l_name && *map->l_name ? map->l_name : "/proc/self/exe";
+  auto path = std::filesystem::canonical(self, ec);
+  return ec ? std::filesystem::path() : path;
 }
 
 std::vector<std::filesystem::path> moduleDirs() {
@@ -59,9 +61,9 @@ void* moduleSymbol(const std::string& name, const char* symbol, const std::strin
     }
   }
   if (!handle)
-    throw Error(what + " needs the module " + "lib" + name +
-                ".so, which could not be loaded (set CIP_MODULE_DIR "
-                "to the folder that holds it; it is built into BUILD/modules):" +
+    throw Error(what + " needs the module lib" + name +
+                ".so, which could not be loaded (set CIP_MODULE_DIR to "
+                "the folder that holds it; it is built into BUILD/modules):" +
                 tried);
   dlerror();
   void* address = dlsym(handle, symbol);

@@ -21,8 +21,9 @@
 namespace cip {
 
 /// The address of `symbol` in module `name` (file lib<name>.so), loading the module the first time it is
-/// asked for (thread-safe; a module stays loaded). Throws cip::Error naming `what` (what the module is for),
-/// every file tried and why it failed, when no folder holds a module that loads.
+/// asked for (thread-safe; a module stays loaded). Throws cip::Error, starting with `what` (what the module
+/// is wanted for, e.g. "x.vdb: reading OpenVDB files"), naming every file tried and why it failed, when no
+/// folder holds a module that loads.
 void* moduleSymbol(const std::string& name, const char* symbol, const std::string& what);
 
 /// A module's table of functions: calls the entry point `symbol` (`const Table* symbol()`) of module `name`.

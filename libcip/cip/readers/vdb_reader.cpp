@@ -1,6 +1,5 @@
 #include "cip/readers/vdb_reader.h"
 
-#include "cip/core/error.h"
 #include "cip/core/module_loader.h"
 
 namespace cip {
@@ -9,11 +8,7 @@ namespace {
 
 /// OpenVDB is loaded with the module, only when a .vdb file is read.
 const VdbReaderModule& openVdb(const std::string& path) {
-  try {
-    return moduleTable<VdbReaderModule>("cip_vdb", "cip_vdb_reader_module", "reading OpenVDB files");
-  } catch (const Error& e) {
-    throw Error(path + ": " + e.what());
-  }
+  return moduleTable<VdbReaderModule>("cip_vdb", "cip_vdb_reader_module", path + ": reading OpenVDB files");
 }
 
 }  // namespace
