@@ -30,7 +30,8 @@ void writeExtractStats(const std::string& path, const ExtractStats& s, const Mod
                     {"blended_isovertices", s.fitting->blendedVertices},
                     {"unresolved_cells", s.fitting->unresolvedCells.size()},
                     {"edge_holes", s.fitting->holes},
-                    {"edge_holes_closed", s.fitting->holesClosed}};
+                    {"edge_holes_closed", s.fitting->holesClosed},
+                    {"isovalue_raise", s.fitting->isovalueRaise}};
     if (m.reconstruction) {
       j["fitting"]["reconstruction"] = toString(*m.reconstruction);
       if (s.fitting->sampling.cells > 0) {

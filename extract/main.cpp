@@ -224,6 +224,13 @@ void printSummary(const Options& opt, const cip::BuildOptions& build, const cip:
   if (model.reconstruction == cip::Reconstruction::Mask &&
       build.reconstruction == cip::Reconstruction::Auto && !build.label)
     std::fprintf(stderr, "reference: mask (the samples next to the surface take two values only)\n");
+  if (stats.fitting && stats.fitting->isovalueRaise > 0)
+    std::fprintf(
+        stderr,
+        "isovalue: built at %.9g, %g of a level above %g: the samples next to the surface are integers "
+        "that step by a level or two, and many equal the isovalue (every sample keeps its side; "
+        "docs/method.md)\n",
+        model.isovalue, stats.fitting->isovalueRaise, model.isovalue - stats.fitting->isovalueRaise);
   if (model.reconstruction && build.reconstruction == cip::Reconstruction::Auto &&
       stats.fitting->sampling.cells > 0)
     std::fprintf(stderr,
@@ -424,9 +431,13 @@ void defineOptions(CLI::App& app, Options& opt) {
   app.add_option("input", opt.input, "volume file or analytic field name, e.g. tooth.nhdr or sphere")
       ->required();
   app.add_option("-o,--output", opt.output, "model file to write (.cip), e.g. -o tooth.cip")->required();
-  app.add_option("--iso", opt.iso,
-                 "isovalue; positive side = value > isovalue (default: 0 for level sets and "
-                 "the field's own value for analytic fields; required otherwise), e.g. --iso 120");
+  app.add_option(
+      "--iso", opt.iso,
+      "isovalue; positive side = value > isovalue (default: 0 for level sets and "
+      "the field's own value for analytic fields; required otherwise); with --reconstruction auto, integer "
+      "samples that climb by a level or two per voxel are built 1/64 of a level above an integer isovalue, "
+      "which keeps every "
+      "sample's side (docs/method.md, \"Terraces\"), e.g. --iso 120");
   app.add_option(
          "--normals", opt.normals,
          "corner-plane normals: edge, gradient (default) or exact (analytic only), e.g. --normals exact")

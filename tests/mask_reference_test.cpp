@@ -14,6 +14,7 @@
 #include "cip/model/model_file.h"
 #include "cip/model/patch_fitting.h"
 #include "cip/reference/reconstruction_choice.h"
+#include "support/corner_sides.h"
 #include "support/model_bytes.h"
 
 using namespace cip;
@@ -69,23 +70,6 @@ std::function<double(const Vec3&)> plate(const Vec3& centre, double thickness) {
   return [=](const Vec3& x) { return thickness / 2 - std::abs(n.dot(x - centre)); };
 }
 
-/// Grid points of crossed cells whose patch puts them on the other side than their sample: each corner of
-/// each cell, 1e-4 voxel inside the cell (at the corner itself every face plane through it vanishes).
-int wrongSideCorners(const Model& model, const DenseGrid& samples, double iso) {
-  int wrong = 0;
-  for (std::size_t c = 0; c < model.cells.size(); ++c) {
-    const CornerPatch patch = model.patch(c);
-    const auto& index = model.cells[c].index;
-    for (int v = 0; v < 8; ++v) {
-      const int d[3] = {v & 1, (v >> 1) & 1, v >> 2};
-      const Vec3 local(d[0] ? 1 - 1e-4 : 1e-4, d[1] ? 1 - 1e-4 : 1e-4, d[2] ? 1 - 1e-4 : 1e-4);
-      const bool inside = samples.at(index[0] + d[0], index[1] + d[1], index[2] + d[2]) > iso;
-      if ((patch.value(local) > 0) != inside) ++wrong;
-    }
-  }
-  return wrong;
-}
-
 }  // namespace
 
 TEST(TwoValuedSamples, AreMasksButNotContinuousData) {
@@ -121,7 +105,7 @@ TEST(MaskReference, KeepsEveryGridPointOnItsSide) {
     ASSERT_TRUE(model.reconstruction.has_value());
     EXPECT_EQ(*model.reconstruction, Reconstruction::Mask);
     EXPECT_GT(model.cells.size(), 500u);
-    EXPECT_EQ(wrongSideCorners(model, m, 127.5), 0);
+    EXPECT_EQ(test::wrongSideCorners(model, m, 127.5), 0);
     // The file records it.
     const Model stored = parseModel(serializeModel(model).data(), serializeModel(model).size());
     EXPECT_EQ(stored.reconstruction, Reconstruction::Mask);
@@ -179,7 +163,7 @@ TEST(MaskReference, FollowsThinPartsWithTheSmallerScales) {
     std::printf("%s: %.4f voxel, %.2f degrees\n", t.name, f.distanceVoxels.mean, f.normalDegrees.mean);
     EXPECT_LT(f.distanceVoxels.mean, t.distance) << t.name;
     EXPECT_LT(f.normalDegrees.mean, t.degrees) << t.name;
-    EXPECT_EQ(wrongSideCorners(model, m, 127.5), 0) << t.name;
+    EXPECT_EQ(test::wrongSideCorners(model, m, 127.5), 0) << t.name;
   }
 }
 
@@ -207,8 +191,8 @@ TEST(LabelMap, TouchingLabelsShareTheirSurface) {
     models[l] = buildModel(labels, options);
     ASSERT_TRUE(models[l].reconstruction.has_value());
     EXPECT_EQ(*models[l].reconstruction, Reconstruction::Mask);
-    EXPECT_EQ(wrongSideCorners(models[l],
-                               sampled(30, [&](const Vec3& x) { return (inner(x) > 0) == (l == 0); }), 0.5),
+    EXPECT_EQ(test::wrongSideCorners(
+                  models[l], sampled(30, [&](const Vec3& x) { return (inner(x) > 0) == (l == 0); }), 0.5),
               0);
   }
   ASSERT_EQ(models[0].cells.size(), models[1].cells.size());

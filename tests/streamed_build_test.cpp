@@ -163,6 +163,27 @@ TEST(StreamedBuild, LabelMapAndDetectedMask) {
   EXPECT_EQ(stats.reconstruction, Reconstruction::Mask);
 }
 
+// Integer samples that climb by a level per voxel (terraces, build_passes.h): Auto raises the isovalue from
+// the slabs' own counts as the whole volume does, and the models are the same.
+TEST(StreamedBuild, TerracedSamples) {
+  test::ScratchDir dir;
+  test::writeAll(
+      dir.file("terraces.nrrd"),
+      "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 30 30 30\nencoding: raw\n\n" + [] {
+        std::string b;
+        for (int n = 0; n < 27000; ++n) {
+          const double i = n % 30 - 14.6, j = n / 30 % 30 - 15.3, k = n / 900 - 14.8;
+          b += static_cast<char>(std::lround(128 + 1.3 * (10.2 - std::sqrt(i * i + j * j + k * k))));
+        }
+        return b;
+      }());
+  BuildOptions o = optionsFor(128, PatchMethod::Fitted, Reconstruction::Auto);
+  FittingStats stats;
+  o.fittingStats = &stats;
+  expectStreamedEqualsWhole(dir.file("terraces.nrrd"), o, {1, 4});
+  EXPECT_EQ(stats.isovalueRaise, 1.0 / 64);
+}
+
 TEST(StreamedBuild, ExtractStreamGivesTheSameFile) {
   test::ScratchDir dir;
   const std::string blobs = test::sourceFile("data/blobs.nrrd");

@@ -71,18 +71,23 @@ class Progress {
 
 /// Whether a build follows the smoothed indicator of a mask or label (mask_reference.h) instead of the
 /// samples: never, always (asked for: a label, or Reconstruction::Mask), or when the samples next to the
-/// surface take two values in every brick (Auto on sampled data: detect it).
+/// surface take two values in every brick or form terraces (Auto on sampled data: detect it).
 enum class MaskRule : std::uint8_t { Samples, Mask, Detect };
 /// The rule of `options`; throws cip::Error when the mask is asked for without the fitted construction's
 /// reference of the samples.
 MaskRule maskRule(const BuildOptions& options);
 
 /// MaskRule::Detect's verdict over bricks, told each brick's detectTwoValued in turn: the mask when some
-/// brick saw the surface and every such brick saw the same two values.
+/// brick saw the surface and every such brick saw the same two values. Also whether the samples form
+/// terraces at the isovalue (terraced()).
 class TwoValuedVerdict {
  public:
   void add(const TwoValuedSamples& t) {
-    if (failed_ || t.points == 0) return;
+    if (t.points == 0) return;
+    integral_ = integral_ && t.integral;
+    crossedEdges_ += t.crossedEdges;
+    terraceEdges_ += t.terraceEdges;
+    if (failed_) return;
     if (!t.twoValued || (seen_ && (below_ != t.below || above_ != t.above))) {
       failed_ = true;
       return;
@@ -92,12 +97,32 @@ class TwoValuedVerdict {
     above_ = t.above;
   }
   bool mask() const { return seen_ && !failed_; }
-  bool decided() const { return failed_; }  ///< no further brick can make it the mask
+  /// Most crossed grid edges counted are terrace steps (TwoValuedSamples::kTerraceSteps) between integer
+  /// samples, at an integer isovalue: a smooth field quantised to a level per voxel or less, where many
+  /// samples next to the surface equal the isovalue and the monotone and central8 interpolants are zero on
+  /// plateaus around them. Fitted to such a reference, nearly every cell fails and the fallback rounds and
+  /// hole blends refit each many times (docs/performance.md, "Why 1024³ blobs take minutes").
+  bool terraced() const { return integral_ && crossedEdges_ > 0 && 2 * terraceEdges_ > crossedEdges_; }
+  /// No further brick can change mask() or terraced().
+  bool decided() const { return failed_ && !integral_; }
 
  private:
-  bool seen_ = false, failed_ = false;
+  bool seen_ = false, failed_ = false, integral_ = true;
   double below_ = 0, above_ = 0;
+  std::int64_t crossedEdges_ = 0, terraceEdges_ = 0;
 };
+
+/// How far above the isovalue a fitted build of terraced samples runs (terraceRaise): 1/64 of a level. No
+/// integer sample lies between the isovalue and it, so every sample keeps its side, every cell its
+/// configuration; the crossings next to samples at the isovalue move 1/64 of a level off them (at most 1/64
+/// voxel where the samples step by a level), and the interpolants are no longer zero on plateaus. On a
+/// crop of the 1024³ blobs of benchmarks/streaming_memory.py the fit ran 100 times faster for a patch surface
+/// as close to the true level set (docs/performance.md).
+constexpr double kTerraceRaise = 1.0 / 64;
+/// kTerraceRaise where `verdict` found terraces and no mask (the mask's own field has no plateaus), else 0.
+inline double terraceRaise(const TwoValuedVerdict& verdict) {
+  return !verdict.mask() && verdict.terraced() ? kTerraceRaise : 0.0;
+}
 
 /// The field a mask's model is built from, of one brick's samples: smoothMask, or smoothLabel of the label
 /// (with its blocks placed along z as in the volume whose slice `firstSliceZ` is the brick's first).

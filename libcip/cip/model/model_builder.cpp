@@ -62,17 +62,27 @@ namespace {
 Model buildSampled(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
                    const BuildOptions& options, const std::string& source);
 
-/// Whether the build follows the smoothed indicator of a mask or label (build::maskRule; Detect: the samples
-/// of every brick two-valued next to the surface).
-bool followsMask(const std::vector<GridBrick>& bricks, const BuildOptions& options) {
+/// What the samples decide (build::maskRule; Detect: from every brick's detectTwoValued): whether the build
+/// follows the smoothed indicator of a mask or label, and how far it raises the isovalue over terraced
+/// samples (build::terraceRaise).
+struct SampleChoice {
+  bool mask = false;
+  double raise = 0;
+};
+
+SampleChoice chooseFromSamples(const std::vector<GridBrick>& bricks, const BuildOptions& options) {
   const build::MaskRule rule = build::maskRule(options);
-  if (rule != build::MaskRule::Detect) return rule == build::MaskRule::Mask;
+  if (rule != build::MaskRule::Detect) return {rule == build::MaskRule::Mask, 0.0};
   build::TwoValuedVerdict verdict;
   for (const GridBrick& b : bricks) {
-    verdict.add(detectTwoValued(*b.grid, options.isovalue));
+    TerraceCount count;
+    count.begin = b.cellBegin;
+    count.end = b.cellEnd;
+    count.firstSliceZ = b.offset[2];
+    verdict.add(detectTwoValued(*b.grid, options.isovalue, count));
     if (verdict.decided()) break;
   }
-  return verdict.mask();
+  return {verdict.mask(), build::terraceRaise(verdict)};
 }
 
 /// The model of the smoothed indicator: each brick's field (build::maskField), built with Central8
@@ -108,8 +118,14 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
   // The detection and the mask's field run in parallel too, bounded as the passes are.
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   return arena.execute([&] {
-    return followsMask(bricks, options) ? buildMask(geometry, bricks, options, source)
-                                        : buildSampled(geometry, bricks, options, source);
+    const SampleChoice choice = chooseFromSamples(bricks, options);
+    if (choice.mask) return buildMask(geometry, bricks, options, source);
+    if (choice.raise == 0) return buildSampled(geometry, bricks, options, source);
+    BuildOptions raised = options;
+    raised.isovalue += choice.raise;
+    Model model = buildSampled(geometry, bricks, raised, source);
+    if (options.fittingStats) options.fittingStats->isovalueRaise = choice.raise;
+    return model;
   });
 }
 

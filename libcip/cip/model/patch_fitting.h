@@ -38,6 +38,9 @@ struct FittingStats {
   /// resolved) and, for Auto, the estimate it was resolved from (reconstruction_choice.h).
   Reconstruction reconstruction = Reconstruction::Monotone;
   SamplingEstimate sampling;
+  /// Set by buildModel: how far it raised the isovalue over terraced samples (build_passes.h,
+  /// terraceRaise; the model's isovalue is the raised one); 0 when it did not.
+  double isovalueRaise = 0;
 };
 
 /// Replaces the side and central coefficients and the corner-plane normals of a model built with the paper's

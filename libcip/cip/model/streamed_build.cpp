@@ -161,6 +161,7 @@ class SlabWindow {
 /// estimate (over the crossed cells of the samples, in the whole-volume build's scan order).
 struct GlobalChoice {
   bool mask = false;
+  double raise = 0;  ///< build::terraceRaise
   std::optional<SamplingEstimate> sampling;
 };
 
@@ -185,7 +186,11 @@ GlobalChoice choose(const GridGeometry& geometry, const BuildOptions& options, c
     const DenseGrid& samples = window.load(lo, hi);
     bricks[static_cast<std::size_t>(s)] = plan.brick(s);
     bricks[static_cast<std::size_t>(s)].grid = &samples;
-    const TwoValuedSamples twoValued = detectTwoValued(samples, options.isovalue);
+    TerraceCount count;  // the slab's own cells, as the whole volume's brick counts them
+    count.begin = bricks[static_cast<std::size_t>(s)].cellBegin;
+    count.end = bricks[static_cast<std::size_t>(s)].cellEnd;
+    count.firstSliceZ = bricks[static_cast<std::size_t>(s)].offset[2];
+    const TwoValuedSamples twoValued = detectTwoValued(samples, options.isovalue, count);
     if (ranks) record.twoValued.push_back(twoValued);
     verdict.add(twoValued);
     const build::Input in{geometry, bricks, scanOptions, build::GridKeys{geometry.dims}, progress};
@@ -199,6 +204,7 @@ GlobalChoice choose(const GridGeometry& geometry, const BuildOptions& options, c
     build::gatherFirstPass(*ranks, record, verdict, estimator);
   }
   choice.mask = verdict.mask();
+  choice.raise = build::terraceRaise(verdict);
   choice.sampling = estimator.estimate();
   return choice;
 }
@@ -282,7 +288,8 @@ Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const B
   const GlobalChoice choice =
       choose(geometry, options, planSlabs(geometry, kEstimateHalo, -1, stream, ranks), window, progress);
   stats.passes = choice.sampling ? 2 : 1;
-  const BuildOptions o = choice.mask ? build::maskFieldOptions(options) : options;
+  BuildOptions o = choice.mask ? build::maskFieldOptions(options) : options;
+  o.isovalue += choice.raise;
   BuildTimings timings;
   timings.reference = secondsSince(start);
   build::SlabHarvest harvest;
@@ -321,6 +328,7 @@ Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const B
   mark = Clock::now();
   if (build::fitsModelWide(o)) build::fitCoefficients(in, harvest.cells, harvest.reference, loops, model);
   timings.fit = secondsSince(mark);
+  if (options.fittingStats) options.fittingStats->isovalueRaise = choice.raise;
   if (choice.mask) {
     model.reconstruction = Reconstruction::Mask;
     if (options.fittingStats) options.fittingStats->reconstruction = Reconstruction::Mask;

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <vector>
 
@@ -490,9 +491,10 @@ DenseGrid classField(const DenseGrid& grid, const ClassOf& classOf, std::int64_t
 
 /// What detectTwoValued gathers over a range of slices.
 struct TwoValuedScan {
-  bool conflict = false, haveBelow = false, haveAbove = false;
+  bool conflict = false, haveBelow = false, haveAbove = false, integral = true;
+  bool counting = true;  ///< this scan's edges may count towards the terrace steps (not joined)
   double below = 0, above = 0;
-  std::int64_t points = 0;
+  std::int64_t points = 0, crossedEdges = 0, terraceEdges = 0;
 
   void add(double v, double iso) {
     if (!std::isfinite(v)) {
@@ -508,12 +510,30 @@ struct TwoValuedScan {
     }
     ++points;
   }
+  /// The two samples of a crossed grid edge; `counted`: the edge counts towards the terrace steps.
+  void addEdge(double a, double b, double iso, bool counted) {
+    add(a, iso);
+    add(b, iso);
+    if (!counted) return;
+    ++crossedEdges;
+    const bool integers = a == std::trunc(a) && b == std::trunc(b);  // false for non-finite samples
+    integral = integral && integers;
+    if (integers && std::abs(a - b) <= TwoValuedSamples::kTerraceSteps) ++terraceEdges;
+  }
+  /// Neither verdict can change: the samples are not two-valued, and those of the counted edges not all
+  /// integers (so no terraces).
+  bool settlesAll() const { return conflict && !integral; }
+  /// The rest of this scan's samples can change neither verdict.
+  bool settled() const { return conflict && (!integral || !counting); }
   void join(const TwoValuedScan& o) {
     conflict = conflict || o.conflict || (haveBelow && o.haveBelow && below != o.below) ||
                (haveAbove && o.haveAbove && above != o.above);
+    integral = integral && o.integral;
     if (o.haveBelow) below = o.below, haveBelow = true;
     if (o.haveAbove) above = o.above, haveAbove = true;
     points += o.points;
+    crossedEdges += o.crossedEdges;
+    terraceEdges += o.terraceEdges;
   }
 };
 
@@ -531,25 +551,45 @@ int maskReach() {
   return kernels().radius() + kernels().weight.radius + referenceReach(Reconstruction::Central8);
 }
 
-TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue) {
+TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue, const TerraceCount& count) {
   const Dims& d = grid.geometry.dims;
+  std::array<std::int64_t, 3> end = count.end;
+  for (std::size_t a = 0; a < 3; ++a)
+    if (end[a] < 0) end[a] = d[a];
+  const bool terraces = isovalue == std::trunc(isovalue);
+  auto countsSlice = [&](std::int64_t k) {
+    return terraces && k >= count.begin[2] && k < end[2] &&
+           (count.firstSliceZ + k) % TerraceCount::kSliceStride == 0;
+  };
+  auto counted = [&](std::int64_t i, std::int64_t j) {
+    return i >= count.begin[0] && i < end[0] && j >= count.begin[1] && j < end[1];
+  };
+  // Each slice is scanned on its own, until its samples can change neither verdict (not two-valued, and not
+  // integers or not counted), so that the verdicts do not depend on how the slices are split between
+  // threads; once one slice has settled both for the whole grid, the others stop too (the counts then stay
+  // partial; the verdicts do not change).
+  std::atomic<bool> settled{false};
   const TwoValuedScan scan = tbb::parallel_reduce(
       tbb::blocked_range<std::int64_t>(0, d[2]), TwoValuedScan(),
       [&](const tbb::blocked_range<std::int64_t>& r, TwoValuedScan s) {
-        for (std::int64_t k = r.begin(); k != r.end() && !s.conflict; ++k)
-          for (std::int64_t j = 0; j < d[1]; ++j) {
+        for (std::int64_t k = r.begin(); k != r.end() && !settled.load(std::memory_order_relaxed); ++k) {
+          TwoValuedScan slice;
+          const bool countHere = countsSlice(k);
+          slice.counting = countHere;
+          for (std::int64_t j = 0; j < d[1] && !slice.settled(); ++j) {
             const double* p = &grid.values[static_cast<std::size_t>(grid.index(0, j, k))];
             for (std::int64_t i = 0; i < d[0]; ++i) {
               const bool side = p[i] > isovalue;
               const std::int64_t step[3] = {1, d[0], d[0] * d[1]};
               const bool inside[3] = {i + 1 < d[0], j + 1 < d[1], k + 1 < d[2]};
               for (int a = 0; a < 3; ++a)
-                if (inside[a] && (p[i + step[a]] > isovalue) != side) {
-                  s.add(p[i], isovalue);
-                  s.add(p[i + step[a]], isovalue);
-                }
+                if (inside[a] && (p[i + step[a]] > isovalue) != side)
+                  slice.addEdge(p[i], p[i + step[a]], isovalue, countHere && counted(i, j));
             }
           }
+          if (slice.settlesAll()) settled.store(true, std::memory_order_relaxed);
+          s.join(slice);
+        }
         return s;
       },
       [](TwoValuedScan x, const TwoValuedScan& y) {
@@ -561,6 +601,9 @@ TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue) {
   result.twoValued = !scan.conflict && scan.haveBelow && scan.haveAbove;
   result.below = scan.below;
   result.above = scan.above;
+  result.crossedEdges = scan.crossedEdges;
+  result.terraceEdges = scan.terraceEdges;
+  result.integral = scan.integral;
   return result;
 }
 
