@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """extract under mpirun (docs/mpi.md): the model file of `mpirun -np N extract ARGS` must equal, byte for byte,
-the one of the plain `extract ARGS`, for N = 1, 2, 3, on the bundled sample, an analytic field, and the shared
+the one of the plain `extract ARGS`, for N = 1, 2, 3, on the bundled sample, a terraced volume, an analytic field, and the shared
 tooth CT and OpenVDB sphere when ../shared/data has them, with both methods. A failing rank must fail the run
 with its message and leave no model file.
 
@@ -14,11 +14,26 @@ import sys
 import tempfile
 
 
-def cases(root):
+def terraces(tmp):
+    """A 30^3 uint8 ball that climbs 1.3 levels per voxel: extract raises the isovalue 128 over its terraces
+    (docs/method.md, "Terraces"), decided from each rank's slabs."""
+    import math
+    path = os.path.join(tmp, "terraces.nrrd")
+    body = bytearray()
+    for n in range(27000):
+        i, j, k = n % 30 - 14.6, n // 30 % 30 - 15.3, n // 900 - 14.8
+        body.append(int(math.floor(128 + 1.3 * (10.2 - math.sqrt(i * i + j * j + k * k)) + 0.5)))
+    with open(path, "wb") as f:
+        f.write(b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 30 30 30\nencoding: raw\n\n" + bytes(body))
+    return path
+
+
+def cases(root, tmp):
     """(name, extract arguments before -o) for every input present."""
     shared = os.path.join(root, "..", "shared", "data")
     out = [
         ("blobs", [os.path.join(root, "data", "blobs.nrrd"), "--iso", "128"]),
+        ("terraces", [terraces(tmp), "--iso", "128"]),
         ("sphere48", ["sphere", "--resolution", "48"]),
         # Marschner-Lobb with exact normals leaves cells for the rounds after the first (split) one.
         ("marschner-lobb32", ["marschner-lobb", "--resolution", "32", "--normals", "exact"]),
@@ -44,7 +59,7 @@ def mpirun_prefix(mpirun, n):
 def check_identical(args, tmp):
     failures = []
     skip = set(filter(None, args.skip.split(",")))
-    for name, inp in cases(args.root):
+    for name, inp in cases(args.root, tmp):
         if name in skip:
             continue
         for method in ("fitted", "paper"):
@@ -69,7 +84,13 @@ def check_identical(args, tmp):
                 if not same:
                     failures.append(f"{name} {method} np {n}: model differs from the plain run's")
                 failures += check_stats(stats, n, f"{name} {method} np {n}")
-                if name in ("blobs", "tooth"):  # dense files: each rank reads its own slabs
+                if name == "terraces" and method == "fitted":
+                    import json
+                    with open(stats) as f:
+                        raise_ = json.load(f)["fitting"]["isovalue_raise"]
+                    if raise_ != 1 / 64:
+                        failures.append(f"{name} {method} np {n}: isovalue raised by {raise_}, not 1/64")
+                if name in ("blobs", "terraces", "tooth"):  # dense files: each rank reads its own slabs
                     failures += check_own_slabs(stats, n, f"{name} {method} np {n}")
     return failures
 
