@@ -112,6 +112,16 @@ class TwoValuedVerdict {
   std::int64_t crossedEdges_ = 0, terraceEdges_ = 0;
 };
 
+/// Where detectTwoValued counts a brick's terrace steps: its own cells, so that bricks and slabs that overlap
+/// count what the whole volume counts.
+inline TerraceCount terraceCountOf(const GridBrick& brick) {
+  TerraceCount count;
+  count.begin = brick.cellBegin;
+  count.end = brick.cellEnd;
+  count.firstSliceZ = brick.offset[2];
+  return count;
+}
+
 /// How far above the isovalue a fitted build of terraced samples runs (terraceRaise): 1/64 of a level. No
 /// integer sample lies between the isovalue and it, so every sample keeps its side, every cell its
 /// configuration; the crossings next to samples at the isovalue move 1/64 of a level off them (at most 1/64

@@ -75,11 +75,7 @@ SampleChoice chooseFromSamples(const std::vector<GridBrick>& bricks, const Build
   if (rule != build::MaskRule::Detect) return {rule == build::MaskRule::Mask, 0.0};
   build::TwoValuedVerdict verdict;
   for (const GridBrick& b : bricks) {
-    TerraceCount count;
-    count.begin = b.cellBegin;
-    count.end = b.cellEnd;
-    count.firstSliceZ = b.offset[2];
-    verdict.add(detectTwoValued(*b.grid, options.isovalue, count));
+    verdict.add(detectTwoValued(*b.grid, options.isovalue, build::terraceCountOf(b)));
     if (verdict.decided()) break;
   }
   return {verdict.mask(), build::terraceRaise(verdict)};

@@ -186,11 +186,8 @@ GlobalChoice choose(const GridGeometry& geometry, const BuildOptions& options, c
     const DenseGrid& samples = window.load(lo, hi);
     bricks[static_cast<std::size_t>(s)] = plan.brick(s);
     bricks[static_cast<std::size_t>(s)].grid = &samples;
-    TerraceCount count;  // the slab's own cells, as the whole volume's brick counts them
-    count.begin = bricks[static_cast<std::size_t>(s)].cellBegin;
-    count.end = bricks[static_cast<std::size_t>(s)].cellEnd;
-    count.firstSliceZ = bricks[static_cast<std::size_t>(s)].offset[2];
-    const TwoValuedSamples twoValued = detectTwoValued(samples, options.isovalue, count);
+    const TwoValuedSamples twoValued = detectTwoValued(
+        samples, options.isovalue, build::terraceCountOf(bricks[static_cast<std::size_t>(s)]));
     if (ranks) record.twoValued.push_back(twoValued);
     verdict.add(twoValued);
     const build::Input in{geometry, bricks, scanOptions, build::GridKeys{geometry.dims}, progress};
