@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <functional>
+#include <limits>
 
 #include "cip/mesh/patch_mesh.h"
 #include "cip/model/build_passes.h"
@@ -70,6 +71,11 @@ TEST(TerracedSamples, AreIntegersThatStepByALevelOrTwo) {
   EXPECT_EQ(half.crossedEdges, 0);
   between.add(half);
   EXPECT_EQ(build::terraceRaise(between), 0.0);
+  // An infinite sample is no integer: a counted slice of them (z = 16, a multiple of the stride) ends it.
+  DenseGrid infinite = slopedBall(34, 1.3);
+  for (std::int64_t j = 0; j < 34; ++j)
+    for (std::int64_t i = 0; i < 34; ++i) infinite.at(i, j, 16) = std::numeric_limits<double>::infinity();
+  EXPECT_FALSE(detectTwoValued(infinite, 128).integral);
 }
 
 // Two slabs that overlap by three slices, each counting its own slices as a streamed build's slabs do: the

@@ -71,7 +71,7 @@ class Progress {
 
 /// Whether a build follows the smoothed indicator of a mask or label (mask_reference.h) instead of the
 /// samples: never, always (asked for: a label, or Reconstruction::Mask), or when the samples next to the
-/// surface take two values in every brick or form terraces (Auto on sampled data: detect it).
+/// surface take two values in every brick (Auto on sampled data: detect it).
 enum class MaskRule : std::uint8_t { Samples, Mask, Detect };
 /// The rule of `options`; throws cip::Error when the mask is asked for without the fitted construction's
 /// reference of the samples.

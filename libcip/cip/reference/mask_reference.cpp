@@ -516,7 +516,7 @@ struct TwoValuedScan {
     add(b, iso);
     if (!counted) return;
     ++crossedEdges;
-    const bool integers = a == std::trunc(a) && b == std::trunc(b);  // false for non-finite samples
+    const bool integers = std::isfinite(a) && std::isfinite(b) && a == std::trunc(a) && b == std::trunc(b);
     integral = integral && integers;
     if (integers && std::abs(a - b) <= TwoValuedSamples::kTerraceSteps) ++terraceEdges;
   }
