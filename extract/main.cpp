@@ -435,8 +435,8 @@ void defineOptions(CLI::App& app, Options& opt) {
       "--iso", opt.iso,
       "isovalue; positive side = value > isovalue (default: 0 for level sets and "
       "the field's own value for analytic fields; required otherwise); with --reconstruction auto, integer "
-      "samples that climb by a level or two per voxel are built 1/64 of a level above an integer isovalue, "
-      "which keeps every sample's side (docs/method.md, \"Terraces\"), e.g. --iso 120");
+      "samples are built 1/64 of a level above an integer isovalue, which keeps every sample's side "
+      "(docs/method.md, \"Integer samples at an integer isovalue\"), e.g. --iso 120");
   app.add_option(
          "--normals", opt.normals,
          "corner-plane normals: edge, gradient (default) or exact (analytic only), e.g. --normals exact")

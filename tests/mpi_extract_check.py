@@ -16,7 +16,7 @@ import tempfile
 
 def terraces(tmp):
     """A 30^3 uint8 ball that climbs 1.3 levels per voxel: extract raises the isovalue 128 over its terraces
-    (docs/method.md, "Terraces"), decided from each rank's slabs."""
+    (docs/method.md, "Integer samples at an integer isovalue"), decided from each rank's slabs."""
     import math
     path = os.path.join(tmp, "terraces.nrrd")
     body = bytearray()

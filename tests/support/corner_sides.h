@@ -1,5 +1,5 @@
 // Whether a model's patches keep the grid points of its cells on their samples' side of the isovalue: the
-// property the mask's reference and the raised isovalue of terraced samples must keep.
+// property the mask's reference and the raised isovalue of integer samples must keep.
 #pragma once
 
 #include "cip/model/model.h"

@@ -403,9 +403,12 @@ IsoVertex edgeIsovertex(const Input& in, const SampledReference& reference, cons
       const PointHermiteTable& table = reference.tables[edge.brick];
       t = cubicEdgeVertex(table.at(g.index(lp[0], lp[1], lp[2])), table.at(g.index(lq[0], lq[1], lq[2])),
                           axis, iso, vx.normal);
-      if (v0 == iso || v1 == iso)  // on a grid point: see normalClearOfUncrossedEdges
-        vx.normal =
-            normalClearOfUncrossedEdges(g, v0 == iso ? lp : lq, axis, iso, vx.normal, towardsPositive);
+      // On a grid point, or next to a sample at the isovalue asked for (1/64 of a level off it,
+      // Input::raise): see normalClearOfUncrossedEdges.
+      const double asked = iso - in.raise;
+      const bool on0 = v0 == iso || v0 == asked, on1 = v1 == iso || v1 == asked;
+      if (on0 || on1)
+        vx.normal = normalClearOfUncrossedEdges(g, on0 ? lp : lq, axis, iso, vx.normal, towardsPositive);
     } else if (options.normals == NormalMode::Edge) {
       vx.normal = towardsPositive;
     } else {

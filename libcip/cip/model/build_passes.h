@@ -78,15 +78,14 @@ enum class MaskRule : std::uint8_t { Samples, Mask, Detect };
 MaskRule maskRule(const BuildOptions& options);
 
 /// MaskRule::Detect's verdict over bricks, told each brick's detectTwoValued in turn: the mask when some
-/// brick saw the surface and every such brick saw the same two values. Also whether the samples form
-/// terraces at the isovalue (terraced()).
+/// brick saw the surface and every such brick saw the same two values. Also whether the samples are integers
+/// at an integer isovalue (integerSamples()).
 class TwoValuedVerdict {
  public:
   void add(const TwoValuedSamples& t) {
     if (t.points == 0) return;
     integral_ = integral_ && t.integral;
     crossedEdges_ += t.crossedEdges;
-    terraceEdges_ += t.terraceEdges;
     if (failed_) return;
     if (!t.twoValued || (seen_ && (below_ != t.below || above_ != t.above))) {
       failed_ = true;
@@ -97,41 +96,45 @@ class TwoValuedVerdict {
     above_ = t.above;
   }
   bool mask() const { return seen_ && !failed_; }
-  /// Most crossed grid edges counted are terrace steps (TwoValuedSamples::kTerraceSteps) between integer
-  /// samples, at an integer isovalue: a smooth field quantised to a level per voxel or less, where many
-  /// samples next to the surface equal the isovalue and the monotone and central8 interpolants are zero on
-  /// plateaus around them. Fitted to such a reference, nearly every cell fails and the fallback rounds and
-  /// hole blends refit each many times (docs/performance.md, "Why 1024³ blobs take minutes").
-  bool terraced() const { return integral_ && crossedEdges_ > 0 && 2 * terraceEdges_ > crossedEdges_; }
-  /// No further brick can change mask() or terraced().
+  /// The samples of the crossed grid edges counted are integers, and so is the isovalue: 8- and 16-bit data
+  /// (CT, MRI, quantised fields), where samples equal the isovalue next to the surface. The monotone and
+  /// central8 interpolants are zero on plateaus around such samples where the data climbs by a level or two
+  /// per voxel (terraces: nearly every cell then failed its fit, and the fallback rounds and hole blends
+  /// refitted each many times, docs/performance.md, "Why 1024³ blobs take minutes"), and isovertices on or
+  /// next to grid points leave holes where a corner plane tilts across an uncrossed grid edge
+  /// (docs/method.md, "Integer samples").
+  bool integerSamples() const { return integral_ && crossedEdges_ > 0; }
+  /// No further brick can change mask() or integerSamples().
   bool decided() const { return failed_ && !integral_; }
 
  private:
   bool seen_ = false, failed_ = false, integral_ = true;
   double below_ = 0, above_ = 0;
-  std::int64_t crossedEdges_ = 0, terraceEdges_ = 0;
+  std::int64_t crossedEdges_ = 0;
 };
 
-/// Where detectTwoValued counts a brick's terrace steps: its own cells, so that bricks and slabs that overlap
+/// Where detectTwoValued counts a brick's crossed edges: its own cells, so that bricks and slabs that overlap
 /// count what the whole volume counts.
-inline TerraceCount terraceCountOf(const GridBrick& brick) {
-  TerraceCount count;
+inline CountedEdges countedEdgesOf(const GridBrick& brick) {
+  CountedEdges count;
   count.begin = brick.cellBegin;
   count.end = brick.cellEnd;
   count.firstSliceZ = brick.offset[2];
   return count;
 }
 
-/// How far above the isovalue a fitted build of terraced samples runs (terraceRaise): 1/64 of a level. No
+/// How far above the isovalue a fitted build of integer samples runs (integerRaise): 1/64 of a level. No
 /// integer sample lies between the isovalue and it, so every sample keeps its side, every cell its
 /// configuration; the crossings next to samples at the isovalue move 1/64 of a level off them (at most 1/64
 /// voxel where the samples step by a level), and the interpolants are no longer zero on plateaus. On a
 /// crop of the 1024³ blobs of benchmarks/streaming_memory.py the fit ran 100 times faster for a patch surface
-/// as close to the true level set (docs/performance.md).
-constexpr double kTerraceRaise = 1.0 / 64;
-/// kTerraceRaise where `verdict` found terraces and no mask (the mask's own field has no plateaus), else 0.
-inline double terraceRaise(const TwoValuedVerdict& verdict) {
-  return !verdict.mask() && verdict.terraced() ? kTerraceRaise : 0.0;
+/// as close to the true level set; on CT and MRI data it leaves fewer failed cells and holes
+/// (docs/method.md, "Integer samples").
+constexpr double kIntegerRaise = 1.0 / 64;
+/// kIntegerRaise where `verdict` found integer samples and no mask (the mask's own field has no plateaus),
+/// else 0.
+inline double integerRaise(const TwoValuedVerdict& verdict) {
+  return !verdict.mask() && verdict.integerSamples() ? kIntegerRaise : 0.0;
 }
 
 /// The field a mask's model is built from, of one brick's samples: smoothMask, or smoothLabel of the label
@@ -147,6 +150,9 @@ struct Input {
   const BuildOptions& options;
   GridKeys keys;  ///< of the global grid
   Progress& progress;
+  /// How far options.isovalue lies above the isovalue asked for (integerRaise, else 0): an isovertex next to
+  /// a sample at the asked isovalue is treated as one on that grid point (normalClearOfUncrossedEdges).
+  double raise;
 };
 
 /// Brick-local indices of the global grid point `global` in `brick`.

@@ -60,11 +60,11 @@ int brickApron(const BuildOptions& options) {
 namespace {
 
 Model buildSampled(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
-                   const BuildOptions& options, const std::string& source);
+                   const BuildOptions& options, const std::string& source, double raise = 0);
 
 /// What the samples decide (build::maskRule; Detect: from every brick's detectTwoValued): whether the build
-/// follows the smoothed indicator of a mask or label, and how far it raises the isovalue over terraced
-/// samples (build::terraceRaise).
+/// follows the smoothed indicator of a mask or label, and how far it raises the isovalue over integer
+/// samples (build::integerRaise).
 struct SampleChoice {
   bool mask = false;
   double raise = 0;
@@ -75,10 +75,10 @@ SampleChoice chooseFromSamples(const std::vector<GridBrick>& bricks, const Build
   if (rule != build::MaskRule::Detect) return {rule == build::MaskRule::Mask, 0.0};
   build::TwoValuedVerdict verdict;
   for (const GridBrick& b : bricks) {
-    verdict.add(detectTwoValued(*b.grid, options.isovalue, build::terraceCountOf(b)));
+    verdict.add(detectTwoValued(*b.grid, options.isovalue, build::countedEdgesOf(b)));
     if (verdict.decided()) break;
   }
-  return {verdict.mask(), build::terraceRaise(verdict)};
+  return {verdict.mask(), build::integerRaise(verdict)};
 }
 
 /// The model of the smoothed indicator: each brick's field (build::maskField), built with Central8
@@ -119,7 +119,7 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
     if (choice.raise == 0) return buildSampled(geometry, bricks, options, source);
     BuildOptions raised = options;
     raised.isovalue += choice.raise;
-    Model model = buildSampled(geometry, bricks, raised, source);
+    Model model = buildSampled(geometry, bricks, raised, source, choice.raise);
     if (options.fittingStats) options.fittingStats->isovalueRaise = choice.raise;
     return model;
   });
@@ -127,9 +127,10 @@ Model buildModel(const GridGeometry& geometry, const std::vector<GridBrick>& bri
 
 namespace {
 
-/// buildModel of the samples as they are.
+/// buildModel of the samples as they are, at options.isovalue, which lies `raise` above the isovalue asked
+/// for (build::Input::raise).
 Model buildSampled(const GridGeometry& geometry, const std::vector<GridBrick>& bricks,
-                   const BuildOptions& options, const std::string& source) {
+                   const BuildOptions& options, const std::string& source, double raise) {
   if (options.normals == NormalMode::Exact && !options.exactField) {
     throw Error("exact normals need an analytic field; sampled volumes take gradient or edge normals");
   }
@@ -146,7 +147,7 @@ Model buildSampled(const GridGeometry& geometry, const std::vector<GridBrick>& b
     mark = now;
   };
   arena.execute([&] {
-    const build::Input in{geometry, bricks, options, build::GridKeys{geometry.dims}, progress};
+    const build::Input in{geometry, bricks, options, build::GridKeys{geometry.dims}, progress, raise};
     // Scan (progress to 0.3): the crossed cells and their crossed edges, brick by brick, row by row.
     build::CellScan scan = build::scanCells(in);
     lap(timings.scan);

@@ -38,8 +38,8 @@ struct FittingStats {
   /// resolved) and, for Auto, the estimate it was resolved from (reconstruction_choice.h).
   Reconstruction reconstruction = Reconstruction::Monotone;
   SamplingEstimate sampling;
-  /// Set by buildModel: how far it raised the isovalue over terraced samples (build_passes.h,
-  /// terraceRaise; the model's isovalue is the raised one); 0 when it did not.
+  /// Set by buildModel: how far it raised the isovalue over integer samples (build_passes.h,
+  /// integerRaise; the model's isovalue is the raised one); 0 when it did not.
   double isovalueRaise = 0;
 };
 

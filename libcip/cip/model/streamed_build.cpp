@@ -161,7 +161,7 @@ class SlabWindow {
 /// estimate (over the crossed cells of the samples, in the whole-volume build's scan order).
 struct GlobalChoice {
   bool mask = false;
-  double raise = 0;  ///< build::terraceRaise
+  double raise = 0;  ///< build::integerRaise
   std::optional<SamplingEstimate> sampling;
 };
 
@@ -187,10 +187,10 @@ GlobalChoice choose(const GridGeometry& geometry, const BuildOptions& options, c
     bricks[static_cast<std::size_t>(s)] = plan.brick(s);
     bricks[static_cast<std::size_t>(s)].grid = &samples;
     const TwoValuedSamples twoValued = detectTwoValued(
-        samples, options.isovalue, build::terraceCountOf(bricks[static_cast<std::size_t>(s)]));
+        samples, options.isovalue, build::countedEdgesOf(bricks[static_cast<std::size_t>(s)]));
     if (ranks) record.twoValued.push_back(twoValued);
     verdict.add(twoValued);
-    const build::Input in{geometry, bricks, scanOptions, build::GridKeys{geometry.dims}, progress};
+    const build::Input in{geometry, bricks, scanOptions, build::GridKeys{geometry.dims}, progress, 0.0};
     build::addToEstimate(in, build::scanBrickCells(in, static_cast<std::uint32_t>(s)).cells, estimator);
     bricks[static_cast<std::size_t>(s)].grid = nullptr;
   }
@@ -201,7 +201,7 @@ GlobalChoice choose(const GridGeometry& geometry, const BuildOptions& options, c
     build::gatherFirstPass(*ranks, record, verdict, estimator);
   }
   choice.mask = verdict.mask();
-  choice.raise = build::terraceRaise(verdict);
+  choice.raise = build::integerRaise(verdict);
   choice.sampling = estimator.estimate();
   return choice;
 }
@@ -246,7 +246,7 @@ void harvestSlabs(const build::Input& in, std::vector<GridBrick>& bricks, const 
   // The slabs are this rank's alone: nothing in them is split between ranks.
   BuildOptions own = in.options;
   own.collective = nullptr;
-  const build::Input local{in.geometry, bricks, own, in.keys, in.progress};
+  const build::Input local{in.geometry, bricks, own, in.keys, in.progress, in.raise};
   DenseGrid field;
   const auto [first, end] = plan.mine();
   for (std::int64_t s = first; s < end; ++s) {
@@ -304,7 +304,7 @@ Model streamSlabs(const GridGeometry& geometry, const SliceSource& read, const B
   harvest.reference.tables.resize(static_cast<std::size_t>(plan.count()));
   std::vector<GridBrick> bricks(static_cast<std::size_t>(plan.count()));
   for (std::int64_t s = 0; s < plan.count(); ++s) bricks[static_cast<std::size_t>(s)] = plan.brick(s);
-  const build::Input in{geometry, bricks, o, build::GridKeys{geometry.dims}, progress};
+  const build::Input in{geometry, bricks, o, build::GridKeys{geometry.dims}, progress, choice.raise};
   window.restart();
   harvestSlabs(in, bricks, plan, window, choice.mask, options, harvest, stats, timings);
   auto mark = Clock::now();

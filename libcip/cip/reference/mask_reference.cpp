@@ -492,9 +492,9 @@ DenseGrid classField(const DenseGrid& grid, const ClassOf& classOf, std::int64_t
 /// What detectTwoValued gathers over a range of slices.
 struct TwoValuedScan {
   bool conflict = false, haveBelow = false, haveAbove = false, integral = true;
-  bool counting = true;  ///< this scan's edges may count towards the terrace steps (not joined)
+  bool counting = true;  ///< this scan's edges may be counted (not joined)
   double below = 0, above = 0;
-  std::int64_t points = 0, crossedEdges = 0, terraceEdges = 0;
+  std::int64_t points = 0, crossedEdges = 0;
 
   void add(double v, double iso) {
     if (!std::isfinite(v)) {
@@ -510,7 +510,8 @@ struct TwoValuedScan {
     }
     ++points;
   }
-  /// The two samples of a crossed grid edge; `counted`: the edge counts towards the terrace steps.
+  /// The two samples of a crossed grid edge; `counted`: the edge is counted and its samples checked for
+  /// integers.
   void addEdge(double a, double b, double iso, bool counted) {
     add(a, iso);
     add(b, iso);
@@ -518,10 +519,9 @@ struct TwoValuedScan {
     ++crossedEdges;
     const bool integers = std::isfinite(a) && std::isfinite(b) && a == std::trunc(a) && b == std::trunc(b);
     integral = integral && integers;
-    if (integers && std::abs(a - b) <= TwoValuedSamples::kTerraceSteps) ++terraceEdges;
   }
   /// Neither verdict can change: the samples are not two-valued, and those of the counted edges not all
-  /// integers (so no terraces).
+  /// integers.
   bool settlesAll() const { return conflict && !integral; }
   /// The rest of this scan's samples can change neither verdict.
   bool settled() const { return conflict && (!integral || !counting); }
@@ -533,7 +533,6 @@ struct TwoValuedScan {
     if (o.haveAbove) above = o.above, haveAbove = true;
     points += o.points;
     crossedEdges += o.crossedEdges;
-    terraceEdges += o.terraceEdges;
   }
 };
 
@@ -551,15 +550,15 @@ int maskReach() {
   return kernels().radius() + kernels().weight.radius + referenceReach(Reconstruction::Central8);
 }
 
-TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue, const TerraceCount& count) {
+TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue, const CountedEdges& count) {
   const Dims& d = grid.geometry.dims;
   std::array<std::int64_t, 3> end = count.end;
   for (std::size_t a = 0; a < 3; ++a)
     if (end[a] < 0) end[a] = d[a];
-  const bool terraces = isovalue == std::trunc(isovalue);
+  const bool integerIsovalue = isovalue == std::trunc(isovalue);
   auto countsSlice = [&](std::int64_t k) {
-    return terraces && k >= count.begin[2] && k < end[2] &&
-           (count.firstSliceZ + k) % TerraceCount::kSliceStride == 0;
+    return integerIsovalue && k >= count.begin[2] && k < end[2] &&
+           (count.firstSliceZ + k) % CountedEdges::kSliceStride == 0;
   };
   auto counted = [&](std::int64_t i, std::int64_t j) {
     return i >= count.begin[0] && i < end[0] && j >= count.begin[1] && j < end[1];
@@ -602,7 +601,6 @@ TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue, const T
   result.below = scan.below;
   result.above = scan.above;
   result.crossedEdges = scan.crossedEdges;
-  result.terraceEdges = scan.terraceEdges;
   result.integral = scan.integral;
   return result;
 }

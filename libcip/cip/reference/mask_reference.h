@@ -67,33 +67,29 @@ int maskWeightRadius();
 /// (value <= isovalue) and `above` on the positive side, at every grid point with a neighbour along an axis
 /// on the other side. False when no grid edge is crossed or a sample there is not finite.
 ///
-/// Also how many crossed grid edges are terrace steps: both samples integers, at most kTerraceSteps apart
-/// (a smooth field quantised to about a level per voxel or less, e.g. a gentle slope in 8-bit data). Where
-/// most are, many samples next to the surface equal an integer isovalue, and interpolants of them are zero
-/// on plateaus there (build_passes.h, TwoValuedVerdict::terraced).
+/// Also how many crossed grid edges were counted and whether all their samples are integers: integer data at
+/// an integer isovalue, where samples can equal the isovalue and lie on the surface (build_passes.h,
+/// TwoValuedVerdict::integerSamples).
 struct TwoValuedSamples {
-  /// The largest step between the two samples of a crossed grid edge that makes it a terrace step.
-  static constexpr double kTerraceSteps = 2;
   bool twoValued = false;
   double below = 0, above = 0;
   std::int64_t points = 0;  ///< grid points next to the surface that were looked at
-  /// Crossed grid edges counted (those whose lower end lies in the box detectTwoValued was given), and
-  /// the terrace steps among them.
-  std::int64_t crossedEdges = 0, terraceEdges = 0;
+  /// Crossed grid edges counted (those whose lower end lies in the box detectTwoValued was given).
+  std::int64_t crossedEdges = 0;
   bool integral = true;  ///< every sample of the counted edges is an integer
 };
-/// Where detectTwoValued counts terrace steps: the crossed grid edges whose lower end lies in the box
-/// [begin, end) of grid points (a brick's own cells, so that bricks that overlap count every edge once; end
-/// -1: the grid's end) on a slice whose global z index (that of the grid's slice 0 is firstSliceZ) is a
-/// multiple of kSliceStride, a fixed sample of the volume that costs an eighth of a pass.
-struct TerraceCount {
+/// Where detectTwoValued counts crossed grid edges: those whose lower end lies in the box [begin, end) of
+/// grid points (a brick's own cells, so that bricks that overlap count every edge once; end -1: the grid's
+/// end) on a slice whose global z index (that of the grid's slice 0 is firstSliceZ) is a multiple of
+/// kSliceStride, a fixed sample of the volume that costs an eighth of a pass.
+struct CountedEdges {
   static constexpr std::int64_t kSliceStride = 8;
   std::array<std::int64_t, 3> begin{0, 0, 0}, end{-1, -1, -1};
   std::int64_t firstSliceZ = 0;
 };
-/// The samples next to the surface of `grid`; the terrace steps are counted at an integer isovalue only
+/// The samples next to the surface of `grid`; the crossed edges are counted at an integer isovalue only
 /// (elsewhere no integer sample equals it), on the edges `count` says.
-TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue, const TerraceCount& count = {});
+TwoValuedSamples detectTwoValued(const DenseGrid& grid, double isovalue, const CountedEdges& count = {});
 
 /// The smoothed field of the voxels above `isovalue` (class 1) against the rest (class 0), as samples
 /// isovalue + f: the grid to build a mask's model from with the same isovalue. Same geometry and description.
