@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <set>
 
 #include "cip/core/collective.h"
@@ -41,16 +42,40 @@ std::optional<DenseDataLayout> streamedLayout(const std::string& path, const Vol
 SliceSource StreamedVolume::source() {
   return [this](std::int64_t z0, std::int64_t z1, double* out) {
     reader_.readInto(z0, z1, out);
-    const auto n = static_cast<std::size_t>((z1 - z0) * reader_.sliceSamples());
-    for (std::size_t i = 0; i < n; ++i) {
-      const double v = out[i];
-      if (!std::isfinite(v)) continue;
-      if (!any_) lo_ = hi_ = v;
-      any_ = true;
-      lo_ = std::min(lo_, v);
-      hi_ = std::max(hi_, v);
+    // Slabs overlap by their halo and a build reads the volume twice: only the slices outside the run of
+    // slices already taken into the range are scanned (seeing a sample again does not change the range).
+    const auto perSlice = static_cast<std::size_t>(reader_.sliceSamples());
+    auto scan = [&](std::int64_t from, std::int64_t to) {
+      if (from >= to) return;
+      addToRange(out + static_cast<std::size_t>(from - z0) * perSlice,
+                 static_cast<std::size_t>(to - from) * perSlice);
+    };
+    if (z0 > rangedEnd_ || z1 < rangedBegin_ || rangedBegin_ == rangedEnd_) {  // not joined to that run
+      scan(z0, z1);
+      rangedBegin_ = z0;
+      rangedEnd_ = z1;
+      return;
     }
+    scan(z0, std::min(z1, rangedBegin_));
+    scan(std::max(z0, rangedEnd_), z1);
+    rangedBegin_ = std::min(rangedBegin_, z0);
+    rangedEnd_ = std::max(rangedEnd_, z1);
   };
+}
+
+void StreamedVolume::addToRange(const double* v, std::size_t n) {
+  // A branch-free minimum and maximum of the finite samples, which the compiler vectorises.
+  constexpr double kInf = std::numeric_limits<double>::infinity(), kMax = std::numeric_limits<double>::max();
+  double lo = kInf, hi = -kInf;
+  for (std::size_t i = 0; i < n; ++i) {
+    const bool finite = std::abs(v[i]) <= kMax;  // false for NaN and infinities
+    lo = finite && v[i] < lo ? v[i] : lo;
+    hi = finite && v[i] > hi ? v[i] : hi;
+  }
+  if (!(lo <= hi)) return;  // no finite sample
+  lo_ = any_ ? std::min(lo_, lo) : lo;
+  hi_ = any_ ? std::max(hi_, hi) : hi;
+  any_ = true;
 }
 
 std::pair<double, double> StreamedVolume::range(const Collective* ranks) const {

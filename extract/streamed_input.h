@@ -43,9 +43,13 @@ class StreamedVolume {
   std::vector<std::int64_t> labels(const Collective* ranks = nullptr);
 
  private:
+  /// Takes the finite ones of `n` samples into the range.
+  void addToRange(const double* v, std::size_t n);
+
   SlabReader reader_;
   double lo_ = 0, hi_ = 0;
   bool any_ = false;
+  std::int64_t rangedBegin_ = 0, rangedEnd_ = 0;  ///< the run of slices whose samples range() has seen
 };
 
 }  // namespace cip
