@@ -227,9 +227,9 @@ void printSummary(const Options& opt, const cip::BuildOptions& build, const cip:
   if (stats.fitting && stats.fitting->isovalueRaise > 0)
     std::fprintf(
         stderr,
-        "isovalue: built at %.9g, %g of a level above %g: the samples next to the surface are integers "
-        "that step by a level or two, and many equal the isovalue (every sample keeps its side; "
-        "docs/method.md)\n",
+        "isovalue: built at %.9g, %g of a level above %g: the samples next to the surface are integers, "
+        "and so is the isovalue (every sample keeps its side; --reconstruction monotone or central8 builds "
+        "at the isovalue as given; docs/method.md)\n",
         model.isovalue, stats.fitting->isovalueRaise, model.isovalue - stats.fitting->isovalueRaise);
   if (model.reconstruction && build.reconstruction == cip::Reconstruction::Auto &&
       stats.fitting->sampling.cells > 0)
