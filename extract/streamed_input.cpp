@@ -42,8 +42,8 @@ std::optional<DenseDataLayout> streamedLayout(const std::string& path, const Vol
 SliceSource StreamedVolume::source() {
   return [this](std::int64_t z0, std::int64_t z1, double* out) {
     reader_.readInto(z0, z1, out);
-    // Slabs overlap by their halo and a build reads the volume twice: only the slices outside the run of
-    // slices already taken into the range are scanned (seeing a sample again does not change the range).
+    // A build reads the volume in each of its passes: only the slices outside the run of slices already taken
+    // into the range are scanned (seeing a sample again does not change the range).
     const auto perSlice = static_cast<std::size_t>(reader_.sliceSamples());
     auto scan = [&](std::int64_t from, std::int64_t to) {
       if (from >= to) return;
