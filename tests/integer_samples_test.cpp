@@ -64,20 +64,22 @@ TEST(IntegerSamples, AreCountedAtAnIntegerIsovalue) {
   EXPECT_GT(t.crossedEdges, 50);  // every eighth slice
   gentle.add(t);
   EXPECT_TRUE(gentle.integerSamples());
-  EXPECT_EQ(build::integerRaise(gentle), build::kIntegerRaise);
+  EXPECT_EQ(build::integerRaise(gentle, 128), build::kIntegerRaise);
   // CT-like steps of tens of levels are integer samples too.
   steep.add(detectTwoValued(slopedBall(34, 30), 128));
   EXPECT_TRUE(steep.integerSamples());
-  EXPECT_EQ(build::integerRaise(steep), build::kIntegerRaise);
+  EXPECT_EQ(build::integerRaise(steep, 128), build::kIntegerRaise);
+  // An isovalue so large that 1/64 changes no bit of it is not raised.
+  EXPECT_EQ(build::integerRaise(steep, 0x1p60), 0.0);
   // Samples that are not integers, an isovalue no sample can equal.
   unrounded.add(detectTwoValued(slopedBall(34, 1.3, false), 128));
   EXPECT_FALSE(unrounded.integerSamples());
   EXPECT_TRUE(unrounded.decided());
-  EXPECT_EQ(build::integerRaise(unrounded), 0.0);
+  EXPECT_EQ(build::integerRaise(unrounded, 128), 0.0);
   const TwoValuedSamples half = detectTwoValued(slopedBall(34, 1.3), 127.5);
   EXPECT_EQ(half.crossedEdges, 0);
   between.add(half);
-  EXPECT_EQ(build::integerRaise(between), 0.0);
+  EXPECT_EQ(build::integerRaise(between, 127.5), 0.0);
   // An infinite sample is no integer: a counted slice of them (z = 16, a multiple of the stride) ends it.
   DenseGrid infinite = slopedBall(34, 1.3);
   for (std::int64_t j = 0; j < 34; ++j)

@@ -132,9 +132,10 @@ inline CountedEdges countedEdgesOf(const GridBrick& brick) {
 /// (docs/method.md, "Integer samples").
 constexpr double kIntegerRaise = 1.0 / 64;
 /// kIntegerRaise where `verdict` found integer samples and no mask (the mask's own field has no plateaus),
-/// else 0.
-inline double integerRaise(const TwoValuedVerdict& verdict) {
-  return !verdict.mask() && verdict.integerSamples() ? kIntegerRaise : 0.0;
+/// else 0; also 0 where `isovalue` is so large that adding it changes no bit (from about 2^47).
+inline double integerRaise(const TwoValuedVerdict& verdict, double isovalue) {
+  const bool raise = !verdict.mask() && verdict.integerSamples() && isovalue + kIntegerRaise != isovalue;
+  return raise ? kIntegerRaise : 0.0;
 }
 
 /// The field a mask's model is built from, of one brick's samples: smoothMask, or smoothLabel of the label

@@ -78,7 +78,7 @@ SampleChoice chooseFromSamples(const std::vector<GridBrick>& bricks, const Build
     verdict.add(detectTwoValued(*b.grid, options.isovalue, build::countedEdgesOf(b)));
     if (verdict.decided()) break;
   }
-  return {verdict.mask(), build::integerRaise(verdict)};
+  return {verdict.mask(), build::integerRaise(verdict, options.isovalue)};
 }
 
 /// The model of the smoothed indicator: each brick's field (build::maskField), built with Central8

@@ -201,7 +201,7 @@ GlobalChoice choose(const GridGeometry& geometry, const BuildOptions& options, c
     build::gatherFirstPass(*ranks, record, verdict, estimator);
   }
   choice.mask = verdict.mask();
-  choice.raise = build::integerRaise(verdict);
+  choice.raise = build::integerRaise(verdict, options.isovalue);
   choice.sampling = estimator.estimate();
   return choice;
 }
