@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <set>
 
 #include "cip/core/collective.h"
@@ -64,14 +63,7 @@ SliceSource StreamedVolume::source() {
 }
 
 void StreamedVolume::addToRange(const double* v, std::size_t n) {
-  // A branch-free minimum and maximum of the finite samples, which the compiler vectorises.
-  constexpr double kInf = std::numeric_limits<double>::infinity(), kMax = std::numeric_limits<double>::max();
-  double lo = kInf, hi = -kInf;
-  for (std::size_t i = 0; i < n; ++i) {
-    const bool finite = std::abs(v[i]) <= kMax;  // false for NaN and infinities
-    lo = finite && v[i] < lo ? v[i] : lo;
-    hi = finite && v[i] > hi ? v[i] : hi;
-  }
+  const auto [lo, hi] = finiteRange(v, n);
   if (!(lo <= hi)) return;  // no finite sample
   lo_ = any_ ? std::min(lo_, lo) : lo;
   hi_ = any_ ? std::max(hi_, hi) : hi;

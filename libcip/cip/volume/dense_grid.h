@@ -36,6 +36,10 @@ struct DenseGrid {
   static std::size_t defaultMaxBytes();
 };
 
+/// Smallest and largest finite value of values[0, n) (NaN and infinities skipped; infinity and -infinity when
+/// none is finite), branch-free in four independent lanes.
+std::pair<double, double> finiteRange(const double* values, std::size_t n);
+
 /// Checked product of three non-negative extents; throws cip::Error naming the dims if any is negative or the
 /// product (times bytesPerElement) overflows 64 bits or exceeds maxBytes.
 std::int64_t checkedVolumeSize(const std::array<std::int64_t, 3>& dims, std::size_t bytesPerElement,
