@@ -522,7 +522,7 @@ void defineOptions(CLI::App& app, Options& opt) {
       ->check(CLI::IsMember({"auto", "on", "off"}));
   app.add_option("--slab-cells", opt.slabCells,
                  "with --stream: cells along z each slab owns (default 0: slabs of about 64 MiB of samples "
-                 "with their halo), "
+                 "with their halo, and at least half as many cells as halo slices), "
                  "e.g. --slab-cells 8")
       ->check(CLI::Range(std::int64_t(0), std::int64_t(1) << 40));
   app.add_option("--subdiv", opt.subdiv, "patch mesh: samples per cell edge (default 4), e.g. --subdiv 8")

@@ -262,6 +262,28 @@ TEST(StreamedBuild, StreamOnRefusesWhatItCannotStream) {
             "");
 }
 
+// A budget that holds two slices: slabs still own at least half as many cells as their halo has slices, so
+// that they do not recompute the reference on the halo and move the shared slices for every cell; the
+// model is the whole volume's.
+TEST(StreamedBuild, WideSlicesKeepSlabsAsThickAsHalfTheirHalo) {
+  const std::string path = test::sourceFile("data/blobs.nrrd");  // 48^3, central8: a halo of 4 slices
+  const DenseVolumeProbe probe = probeDenseVolume(path);
+  ASSERT_TRUE(probe.layout.has_value()) << probe.whyNot;
+  SlabReader reader(*probe.layout);
+  StreamOptions stream;
+  stream.slabBytes = 2 * 48 * 48 * sizeof(double);
+  StreamStats stats;
+  BuildOptions options;
+  options.isovalue = 128;
+  const Model m = buildModelStreamed(
+      probe.layout->geometry,
+      [&](std::int64_t z0, std::int64_t z1, double* out) { reader.readInto(z0, z1, out); }, options,
+      probe.layout->description, stream, &stats);
+  EXPECT_EQ(stats.halo, 4);
+  EXPECT_EQ(stats.slabCells, 4);  // (2 * 4 + 1) / 2
+  EXPECT_EQ(test::modelBytes(m), test::modelBytes(buildModel(*readVolume(path).dense(), options)));
+}
+
 // The range of the samples that extract warns with when the isovalue lies outside it: a streamed build sees
 // each slice several times (the slabs' halos, two passes) and counts each once, but none less; NaN and
 // infinite samples stay out of it. The whole read warns with the same range.

@@ -94,7 +94,12 @@ SlabPlan planSlabs(const GridGeometry& geometry, int halo, int blockRadius, cons
   if (cells <= 0) {
     const auto slices = static_cast<std::int64_t>(stream.slabBytes / std::max<std::size_t>(1, sliceBytes));
     const std::int64_t around = 2 * halo + (blockRadius >= 0 ? 2 * (kMaskBlock + blockRadius) : 0);
-    cells = std::max<std::int64_t>(1, slices - 1 - around);
+    // At least half as many cells as slices around them: a slab moves the slices it shares with the one
+    // before and recomputes the reference (or the mask's field) on its halo, so slabs much thinner than
+    // their halo repeat that work many times per cell (wide slices: a 2048² slice of doubles is 32 MiB,
+    // and the 64 MiB budget would leave one cell per slab under a halo of 49 slices). The window may then
+    // exceed the budget.
+    cells = std::max<std::int64_t>({1, slices - 1 - around, (around + 1) / 2});
   }
   plan.cells = std::min(cells, std::max<std::int64_t>(1, cellsZ));
   const int size = ranks ? ranks->size() : 1;

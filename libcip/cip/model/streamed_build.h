@@ -22,7 +22,8 @@ namespace cip {
 using SliceSource = std::function<void(std::int64_t z0, std::int64_t z1, double* out)>;
 
 struct StreamOptions {
-  /// Cells along z each slab owns; 0: as many as keep the slab's samples (halo included) near slabBytes.
+  /// Cells along z each slab owns; 0: as many as keep the slab's samples (halo included) near slabBytes, and
+  /// at least half as many as the slices of its halo (the window then exceeds slabBytes for wide slices).
   std::int64_t slabCells = 0;
   std::size_t slabBytes = std::size_t(64) << 20;
 };
