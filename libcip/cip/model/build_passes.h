@@ -102,7 +102,7 @@ class TwoValuedVerdict {
   /// per voxel (terraces: nearly every cell then failed its fit, and the fallback rounds and hole blends
   /// refitted each many times, docs/performance.md, "Why 1024³ blobs take minutes"), and isovertices on or
   /// next to grid points leave holes where a corner plane tilts across an uncrossed grid edge
-  /// (docs/method.md, "Integer samples").
+  /// (docs/method.md, "Integer samples at an integer isovalue").
   bool integerSamples() const { return integral_ && crossedEdges_ > 0; }
   /// No further brick can change mask() or integerSamples().
   bool decided() const { return failed_ && !integral_; }
@@ -129,7 +129,7 @@ inline CountedEdges countedEdgesOf(const GridBrick& brick) {
 /// voxel where the samples step by a level), and the interpolants are no longer zero on plateaus. On a
 /// crop of the 1024³ blobs of benchmarks/streaming_memory.py the fit ran 100 times faster for a patch surface
 /// as close to the true level set; on CT and MRI data it leaves fewer failed cells and holes
-/// (docs/method.md, "Integer samples").
+/// (docs/method.md, "Integer samples at an integer isovalue").
 constexpr double kIntegerRaise = 1.0 / 64;
 /// kIntegerRaise where `verdict` found integer samples and no mask (the mask's own field has no plateaus),
 /// else 0; also 0 where `isovalue` is so large that adding it changes no bit (from about 2^47).
