@@ -3,8 +3,11 @@
 // none; on the bundled volume it agrees with a search from the samples.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include "cip/measure/surface_fidelity.h"
 #include "cip/model/model_builder.h"
+#include "cip/model/model_file.h"
 #include "cip/model/patch_fitting.h"
 #include "cip/readers/volume_reader.h"
 #include "cip/reference/tricubic_reference.h"
@@ -210,4 +213,23 @@ TEST(OpenFaceLeaks, NoneOnTheFittedTorusAtN64) {
   BuildOptions o;
   o.isovalue = field->defaultIsovalue();
   EXPECT_EQ(countOpenFaceLeaks(buildModel(grid, o)), 0);
+}
+
+// The same torus as stored (format 2) had 32 leaking cells: the rounding of corners and coefficients let the
+// patch dip through open faces it kept clear by a few tenths of a percent of its magnitude there. The writer
+// now refines the cells whose stored patch leaks where the built one does not (docs/model-format.md). On the
+// bundled blobs, where the built model leaks in a few cells, the stored model leaks in none of the others.
+TEST(OpenFaceLeaks, TheStoredModelLeaksOnlyWhereTheBuiltOneDoes) {
+  const auto field = makeAnalyticField("torus");
+  const DenseGrid grid = sampleField(*field, 64, "torus");
+  BuildOptions o;
+  o.isovalue = field->defaultIsovalue();
+  EXPECT_EQ(countOpenFaceLeaks(storedModel(buildModel(grid, o))), 0);
+
+  const SparseVolume volume = readVolume(test::sourceFile("data/blobs.nrrd"));
+  o.isovalue = 128;
+  const Model built = buildModel(*volume.dense(), o);
+  const std::vector<std::uint32_t> builtLeaks = openFaceLeakCells(built);
+  for (std::uint32_t c : openFaceLeakCells(storedModel(built)))
+    EXPECT_TRUE(std::binary_search(builtLeaks.begin(), builtLeaks.end(), c)) << "cell " << c;
 }

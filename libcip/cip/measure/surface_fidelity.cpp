@@ -309,30 +309,11 @@ std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth,
 }
 
 std::vector<std::uint32_t> openFaceLeakCells(const Model& model, int lattice) {
-  const int n = std::max(2, lattice);
   std::vector<std::uint8_t> leaks(model.cells.size(), 0);
   tbb::parallel_for(std::size_t(0), model.cells.size(), [&](std::size_t c) {
     const CornerPatch p = model.patch(c);
-    // Whether the patch has the other sign than open face f's corners at a lattice point of the face.
-    auto leaksOn = [&](int f) {
-      const bool positive = (model.cells[c].config >> cube::faceVertex(f, 0)) & 1;  // the corners share it
-      const int axis = cube::faceAxis(f);
-      Vec3 local;
-      local[axis] = cube::faceSide(f);
-      for (int a = 0; a < n; ++a)
-        for (int b = 0; b < n; ++b) {
-          local[(axis + 1) % 3] = static_cast<double>(a) / (n - 1);
-          local[(axis + 2) % 3] = static_cast<double>(b) / (n - 1);
-          const double v = p.value(local);
-          if (v != 0 && (v > 0) != positive) return true;
-        }
-      return false;
-    };
-    for (int f = 0; f < 6; ++f)
-      if (!((p.faceMask >> f) & 1) && leaksOn(f)) {
-        leaks[c] = 1;
-        break;
-      }
+    for (int f = 0; f < 6 && !leaks[c]; ++f)
+      leaks[c] = !((p.faceMask >> f) & 1) && openFaceLeaks(p, model.cells[c].config, f, lattice);
   });
   std::vector<std::uint32_t> cells;
   for (std::size_t c = 0; c < leaks.size(); ++c)

@@ -13,6 +13,7 @@
 
 #include "cip/mesh/triangle_mesh.h"
 #include "cip/model/model.h"
+#include "cip/patch/open_face_sign.h"
 #include "cip/reference/isovertex.h"
 
 namespace cip {
@@ -77,9 +78,9 @@ std::int64_t countWrongSignFaces(const Model& model, const ScalarField& truth,
 /// the surface across such a face (the cell across has no crossing there, or none joined to this one), so
 /// the patch's zero set ends on it: a hole that rays pass through. Needs no reference: marching cubes'
 /// surface never meets an open face.
-std::int64_t countOpenFaceLeaks(const Model& model, int lattice = 33);
+std::int64_t countOpenFaceLeaks(const Model& model, int lattice = kOpenFaceLattice);
 /// The cells countOpenFaceLeaks counts (indices into Model::cells, increasing).
-std::vector<std::uint32_t> openFaceLeakCells(const Model& model, int lattice = 33);
+std::vector<std::uint32_t> openFaceLeakCells(const Model& model, int lattice = kOpenFaceLattice);
 
 /// Newton steps along the gradient from p (world) onto the surface truth = iso (at most 30; stops when a step
 /// is below 1e-13 or the gradient vanishes). The result is a surface point when it converges, not always the
