@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <random>
 
@@ -92,34 +93,51 @@ TEST(OpenFaceSign, LeaksAsThePatchsValuePointByPoint) {
   EXPECT_GT(leaking, 100) << "the models should leak through some faces, or the test shows little";
 }
 
-// The screen flags a face where, at a point of its 7 x 7 inner lattice (1/8 apart), the value with the
-// corners' sign is below `fraction` of the largest magnitude there, and no other: checked against value() at
-// those points, faces within 10^-9 of the threshold left out (the two sums round differently).
+// The screen flags a face where, at a point inside its 9 x 9 lattice (1/8 apart), the value with the corners'
+// sign is below `inside` times the largest magnitude inside, at a point on its edges (corners left out) below
+// `border` times the largest magnitude of the lattice, or where a corner has the other sign, and no other
+// face: checked against value() at those points, faces within 10^-9 of a threshold left out (the two sums
+// round differently).
 TEST(OpenFaceSign, ScreenFlagsTheFacesThatComeNearTheOtherSign) {
-  int flagged = 0, clear = 0;
+  int flagged = 0, clear = 0, byBorderOnly = 0;
+  const std::array<std::array<double, 2>, 3> fractions{{{0.0, 0.0}, {0.05, 0.01}, {0.3, 0.1}}};
   for (const Model& model : models())
     for (std::size_t c = 0; c < model.cells.size(); ++c) {
       const CornerPatch patch = model.patch(c);
-      for (double fraction : {0.0, 0.05, 0.3}) {
-        const unsigned near = openFacesNearOtherSign(patch, model.cells[c].config, fraction);
+      for (const auto& [inside, border] : fractions) {
+        const unsigned near = openFacesNearOtherSign(patch, model.cells[c].config, inside, border);
         EXPECT_EQ(near & patch.faceMask, 0u) << "a bounding plane is not an open face";
         for (int f = 0; f < 6; ++f) {
           if ((patch.faceMask >> f) & 1) continue;
-          double low = INFINITY, high = 0;
-          for (int a = 1; a <= 7; ++a)
-            for (int b = 1; b <= 7; ++b) {
+          const double sign = cornerSign(model, c, f);
+          double lowInside = INFINITY, highInside = 0, lowBorder = INFINITY, high = 0, lowCorner = INFINITY;
+          for (int a = 0; a <= 8; ++a)
+            for (int b = 0; b <= 8; ++b) {
+              const bool edgeA = a == 0 || a == 8, edgeB = b == 0 || b == 8;
               const double v = faceValue(patch, f, 9, a, b);  // (a / 8, b / 8)
-              low = std::min(low, cornerSign(model, c, f) * v);
               high = std::max(high, std::abs(v));
+              if (edgeA && edgeB) {
+                lowCorner = std::min(lowCorner, sign * v);
+              } else if (edgeA || edgeB) {
+                lowBorder = std::min(lowBorder, sign * v);
+              } else {
+                lowInside = std::min(lowInside, sign * v);
+                highInside = std::max(highInside, std::abs(v));
+              }
             }
-          if (std::abs(low - fraction * high) <= 1e-9 * high) continue;
-          const bool expected = !(low > fraction * high);
-          EXPECT_EQ(((near >> f) & 1) != 0, expected)
-              << "cell " << c << " face " << f << " fraction " << fraction;
-          (expected ? flagged : clear)++;
+          if (std::abs(lowInside - inside * highInside) <= 1e-9 * high ||
+              std::abs(lowBorder - border * high) <= 1e-9 * high || std::abs(lowCorner) <= 1e-9 * high)
+            continue;
+          const bool nearInside = !(lowInside > inside * highInside),
+                     nearBorder = !(lowBorder > border * high) || lowCorner < 0;
+          EXPECT_EQ(((near >> f) & 1) != 0, nearInside || nearBorder)
+              << "cell " << c << " face " << f << " fractions " << inside << ", " << border;
+          (nearInside || nearBorder ? flagged : clear)++;
+          byBorderOnly += nearBorder && !nearInside;
         }
       }
     }
   EXPECT_GT(flagged, 100);
+  EXPECT_GT(byBorderOnly, 10) << "the border's test should flag faces the inside's does not";
   EXPECT_GT(clear, 1000);
 }

@@ -1549,16 +1549,18 @@ constexpr double kFittedShiftTarget = 0.003;
 /// What estimateMovingCells keeps from one round to the next, so that a round estimates again only the cells
 /// whose stored patch changed: those around the corners the last round refined, and those whose normal or
 /// side predictions these moved. The other cells' estimates would repeat the last ones, number for number.
-/// The fraction of openFacesNearOtherSign: a stored patch's open face is checked point by point for a hole
-/// where the screen finds it within 5 % of the face's largest magnitude of the other sign (10 % closed 6 more
-/// of the MRI's 25 holes made by rounding and took about 8 times as many checks).
-constexpr double kNearOpenFace = 0.05;
+/// The fractions of openFacesNearOtherSign: a stored patch's open face is checked point by point for a hole
+/// where the screen finds it within 5 % of the largest magnitude inside the face, or 1 % on its edges, of the
+/// other sign (or of the other sign at a corner). On the MRI and the smoke volume these faces held every hole
+/// the rounding opened (10 % inside alone let one through and checked about 6 times as many faces).
+constexpr double kNearInside = 0.05, kNearBorder = 0.01;
 
 /// Whether `stored` takes the other sign than the corners on an open face of its cell where `built` keeps
 /// their sign, on the lattice of the measure of holes: a hole the rounding of the patch's numbers opened.
 /// Only the faces the screen flags are checked point by point.
 bool opensHole(const CornerPatch& built, const CornerPatch& stored, std::uint8_t config) {
-  for (unsigned near = openFacesNearOtherSign(stored, config, kNearOpenFace); near; near &= near - 1) {
+  for (unsigned near = openFacesNearOtherSign(stored, config, kNearInside, kNearBorder); near;
+       near &= near - 1) {
     const int f = __builtin_ctz(near);
     if (openFaceLeaks(stored, config, f, kOpenFaceLattice) &&
         !openFaceLeaks(built, config, f, kOpenFaceLattice))

@@ -13,8 +13,9 @@ namespace cip {
 
 namespace {
 
-/// The screen's lattice inside a face: kScreen points 1/(kScreen + 1) apart along each face axis.
-constexpr int kScreen = 7;
+/// The screen's lattice on a face: kScreen points 1/(kScreen - 1) apart along each face axis, border
+/// included.
+constexpr int kScreen = 9;
 /// Room for the largest lattice summed on the stack; larger ones use the heap.
 constexpr int kStackPoints = kOpenFaceLattice * kOpenFaceLattice;
 
@@ -58,8 +59,9 @@ class FaceSums {
                        ((across & 2) ? (1 - side) * (1 - side) : 1.0);
       if (c == 0) continue;
       const int pair = 4 * pattern(term.faceSquares, u) + pattern(term.faceSquares, v);
-      pairs_ |= 1u << pair;
       Sum& s = sum_[static_cast<std::size_t>(pair)];
+      if (!((pairs_ >> pair) & 1)) s = Sum{};
+      pairs_ |= 1u << pair;
       if (term.corner < 0) {
         s.a += c;
         s.magnitude += std::abs(c);
@@ -113,7 +115,8 @@ class FaceSums {
   /// it), which bounds the rounding of any way of summing them.
   double magnitude() const {
     double m = 0;
-    for (const Sum& s : sum_) m += s.magnitude;
+    for (unsigned rest = pairs_; rest; rest &= rest - 1)
+      m += sum_[static_cast<std::size_t>(__builtin_ctz(rest))].magnitude;
     return m;
   }
 
@@ -123,7 +126,7 @@ class FaceSums {
   };
   int axis_;
   unsigned pairs_ = 0;
-  std::array<Sum, 16> sum_{};
+  std::array<Sum, 16> sum_;  ///< valid for the pairs in pairs_
 };
 
 /// The squares of the four patterns at coordinates t (sq[m] points into `storage`, 4 n values).
@@ -177,14 +180,14 @@ bool openFaceLeaks(const CornerPatch& patch, std::uint8_t config, int f, int lat
   return false;
 }
 
-unsigned openFacesNearOtherSign(const CornerPatch& patch, std::uint8_t config, double fraction) {
+unsigned openFacesNearOtherSign(const CornerPatch& patch, std::uint8_t config, double inside, double border) {
   struct Screen {
     std::array<double, kScreen> t;
     std::array<double, 4 * kScreen> storage;
     const double* sq[4];
     Screen() {
       for (int i = 0; i < kScreen; ++i)
-        t[static_cast<std::size_t>(i)] = static_cast<double>(i + 1) / (kScreen + 1);
+        t[static_cast<std::size_t>(i)] = static_cast<double>(i) / (kScreen - 1);
       patternSquares(t.data(), kScreen, storage.data(), sq);
     }
   };
@@ -199,12 +202,36 @@ unsigned openFacesNearOtherSign(const CornerPatch& patch, std::uint8_t config, d
     alignas(32) std::array<double, kScreen * kScreen> value;
     FaceSums(patch, terms, numTerms, f).lattice(screen.t.data(), screen.sq, kScreen, value.data());
     const double sign = positiveCorners(config, f) ? 1.0 : -1.0;
-    double low = std::numeric_limits<double>::infinity(), high = 0;
-    for (double x : value) {
-      low = std::min(low, sign * x);
+    constexpr int last = kScreen - 1;
+    double lowInside = std::numeric_limits<double>::infinity(), highInside = 0;
+    for (int b = 1; b < last; ++b)
+      for (int a = 1; a < last; ++a) {
+        const double x = value[static_cast<std::size_t>(a + kScreen * b)];
+        lowInside = std::min(lowInside, sign * x);
+        highInside = std::max(highInside, std::abs(x));
+      }
+    // The border: its edges without the face's corners; at the corners (samples, where the patch need not
+    // have their sign) only a value of the other sign, since the patch comes close to 0 there wherever the
+    // surface passes near a sample, and is 0 where two bounding planes meet.
+    double lowBorder = std::numeric_limits<double>::infinity(), high = highInside;
+    bool cornerTurned = false;
+    auto onBorder = [&](int a, int b) {
+      const double x = value[static_cast<std::size_t>(a + kScreen * b)];
+      lowBorder = std::min(lowBorder, sign * x);
       high = std::max(high, std::abs(x));
+    };
+    for (int i = 1; i < last; ++i) {
+      onBorder(i, 0);
+      onBorder(i, last);
+      onBorder(0, i);
+      onBorder(last, i);
     }
-    if (!(low > fraction * high)) near |= 1u << f;
+    for (int k = 0; k < 4; ++k) {
+      const double x = value[static_cast<std::size_t>((k & 1) * last + kScreen * (k >> 1) * last)];
+      high = std::max(high, std::abs(x));
+      cornerTurned = cornerTurned || sign * x < 0;
+    }
+    if (!(lowInside > inside * highInside) || !(lowBorder > border * high) || cornerTurned) near |= 1u << f;
   }
   return near;
 }

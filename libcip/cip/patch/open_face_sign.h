@@ -21,12 +21,14 @@ constexpr int kOpenFaceLattice = 33;
 /// rounding are evaluated with CornerPatch::value, whose sign is the verdict.
 bool openFaceLeaks(const CornerPatch& patch, std::uint8_t config, int f, int lattice);
 
-/// The open faces of the cell (bit f) on which `patch` may come near the other sign: at a point of a
-/// 7 x 7 lattice inside the face (1/8 apart) its value with the corners' sign is below `fraction` times
-/// the largest magnitude on that lattice (or not above 0). The patch is summed per face by separable
-/// products. A screen, not a proof: a patch can dip through a face between its points. On the MRI of
-/// docs/method.md ("Holes the file made") the faces it flags at 5 % held 18 of the 25 holes that rounding
-/// opened.
-unsigned openFacesNearOtherSign(const CornerPatch& patch, std::uint8_t config, double fraction);
+/// The open faces of the cell (bit f) on which `patch` may come near the other sign, on a 9 x 9 lattice of
+/// the face (1/8 apart, border included): at a point inside the face its value with the corners' sign is
+/// below `inside` times the largest magnitude inside, at a point on an edge of the face (where it meets a
+/// neighbouring face; its corners left out) below `border` times the largest magnitude of the lattice, or
+/// at one of its corners it has the other sign. The patch is summed per face by separable products. A
+/// screen, not a proof: a patch can dip through a face between its points. On the MRI and the smoke volume
+/// of docs/method.md ("Holes the file made") the faces it flags with 5 % inside and 1 % on the edges (4 %
+/// and 6 % of their open faces) held every hole that rounding opened.
+unsigned openFacesNearOtherSign(const CornerPatch& patch, std::uint8_t config, double inside, double border);
 
 }  // namespace cip
