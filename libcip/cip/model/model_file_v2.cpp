@@ -1546,9 +1546,6 @@ bool refineIllConditionedCells(const Model& m, const Model& sk, const CellFaces&
 constexpr double kPaperShiftTarget = 0.002;
 constexpr double kFittedShiftTarget = 0.003;
 
-/// What estimateMovingCells keeps from one round to the next, so that a round estimates again only the cells
-/// whose stored patch changed: those around the corners the last round refined, and those whose normal or
-/// side predictions these moved. The other cells' estimates would repeat the last ones, number for number.
 /// The fractions of openFacesNearOtherSign: a stored patch's open face is checked point by point for a hole
 /// where the screen finds it within 5 % of the largest magnitude inside the face, or 1 % on its edges, of the
 /// other sign (or of the other sign at a corner). On the MRI and the smoke volume these faces held every hole
@@ -1569,6 +1566,9 @@ bool opensHole(const CornerPatch& built, const CornerPatch& stored, std::uint8_t
   return false;
 }
 
+/// What estimateMovingCells keeps from one round to the next, so that a round estimates again only the cells
+/// whose stored patch changed: those around the corners the last round refined, and those whose normal or
+/// side predictions these moved. The other cells' estimates would repeat the last ones, number for number.
 struct MovingCells {
   std::vector<std::uint8_t> moving;  ///< per cell, whether the last estimate found it moving (empty before)
   /// The stored side coefficient of each face of the file and whether it was refined. Fitted models code

@@ -93,12 +93,6 @@ void referenceCellLattice(const CellReference& ref, int L, double* out) {
   tricubicLatticeInLineOrder<Axis>(ref.hermite.data(), ref.isovalue, L, other[0], other[1], out);
 }
 
-/// The two bits of a squared-face mask (bit 2a: plane x_a = 0, bit 2a + 1: plane x_a = 1) that concern axis
-/// a.
-int pattern(std::uint8_t mask, int axis) {
-  return (mask >> (2 * axis)) & 3;
-}
-
 /// The terms of valueWithoutCentral as coefficient * (normal . x + offset) * squared face planes (mask): a
 /// corner term's factor is its corner plane, a side term's the constant 1 (normal 0, offset 1). Listed once
 /// per cell for all its lattices.

@@ -2,7 +2,8 @@
 /// @brief The check lattices of the coefficient fits (face_fit.h, cell_fit.h): lattice axes and the Hermite
 /// weights on them, the reference on a face's lattice, the squared bounding planes at lattice coordinates,
 /// and the tests of how far a sample lies from the reference surface. Internal to patch/: what the face and
-/// the cell fits share; each keeps the rest of its kernels to itself.
+/// the cell fits share (the squared planes also with open_face_sign.cpp); each keeps the rest of its
+/// kernels to itself.
 #pragma once
 #include <array>
 #include <cmath>
@@ -151,6 +152,12 @@ inline bool farFromSurface(const CellReference& ref, double r, const Vec3& gradi
 /// every plane is 1/2 there, so the product is 4^-(bits), exactly.
 inline double centreSquares(unsigned planes) {
   return std::ldexp(1.0, -2 * __builtin_popcount(planes));
+}
+
+/// The two bits of a squared-face mask (bit 2a: plane x_a = 0, bit 2a + 1: plane x_a = 1) that concern axis
+/// a: the pattern of squares() along that axis.
+inline int pattern(std::uint8_t mask, int axis) {
+  return (mask >> (2 * axis)) & 3;
 }
 
 /// Product of the squared face planes along one axis selected by pattern m, at coordinate t.

@@ -7,11 +7,15 @@
 #include <vector>
 
 #include "cip/core/vector_clones.h"
+#include "cip/patch/fit_lattice.h"
 #include "cip/topology/cube_topology.h"
 
 namespace cip {
 
 namespace {
+
+using fit_lattice::pattern;
+using fit_lattice::squares;
 
 /// The screen's lattice on a face: kScreen points 1/(kScreen - 1) apart along each face axis, border
 /// included.
@@ -22,11 +26,6 @@ constexpr int kStackPoints = kOpenFaceLattice * kOpenFaceLattice;
 /// The face's corners' sign (they share it on an open face).
 bool positiveCorners(std::uint8_t config, int f) {
   return (config >> cube::faceVertex(f, 0)) & 1;
-}
-
-/// Which of the two faces across `axis` a face mask holds (bit 0: the face at 0, bit 1: the face at 1).
-int pattern(std::uint8_t mask, int axis) {
-  return (mask >> (2 * axis)) & 3;
 }
 
 /// value[a + n b] += su[a] (p[b] + q[b] t[a]): the terms of one pattern along u over the lattice.
@@ -54,9 +53,7 @@ class FaceSums {
     const int u = (axis_ + 1) % 3, v = (axis_ + 2) % 3;
     for (int i = 0; i < numTerms; ++i) {
       const PatchTerm& term = terms[static_cast<std::size_t>(i)];
-      const int across = pattern(term.faceSquares, axis_);
-      const double c = term.coefficient * ((across & 1) ? side * side : 1.0) *
-                       ((across & 2) ? (1 - side) * (1 - side) : 1.0);
+      const double c = term.coefficient * squares(pattern(term.faceSquares, axis_), side);
       if (c == 0) continue;
       const int pair = 4 * pattern(term.faceSquares, u) + pattern(term.faceSquares, v);
       Sum& s = sum_[static_cast<std::size_t>(pair)];
@@ -129,17 +126,20 @@ class FaceSums {
   std::array<Sum, 16> sum_;  ///< valid for the pairs in pairs_
 };
 
-/// The squares of the four patterns at coordinates t (sq[m] points into `storage`, 4 n values).
+/// The squares of the four patterns at coordinates t (sq[m] points into `storage`, 4 n values), for lattices
+/// whose size is known only at run time (LatticeSquares holds them for fixed ones).
 void patternSquares(const double* t, int n, double* storage, const double* sq[4]) {
-  for (int m = 0; m < 4; ++m) sq[m] = storage + m * n;
-  for (int i = 0; i < n; ++i) {
-    const double x = t[i], x2 = x * x, y2 = (1 - x) * (1 - x);
-    storage[i] = 1;
-    storage[n + i] = x2;
-    storage[2 * n + i] = y2;
-    storage[3 * n + i] = x2 * y2;
+  for (int m = 0; m < 4; ++m) {
+    sq[m] = storage + m * n;
+    for (int i = 0; i < n; ++i) storage[m * n + i] = squares(m, t[i]);
   }
 }
+
+/// The screen's axis: kScreen points 1/(kScreen - 1) apart, border included.
+struct ScreenAxis {
+  static constexpr int n = kScreen;
+  static constexpr double coord(int i) { return static_cast<double>(i) / (kScreen - 1); }
+};
 
 }  // namespace
 
@@ -181,17 +181,8 @@ bool openFaceLeaks(const CornerPatch& patch, std::uint8_t config, int f, int lat
 }
 
 unsigned openFacesNearOtherSign(const CornerPatch& patch, std::uint8_t config, double inside, double border) {
-  struct Screen {
-    std::array<double, kScreen> t;
-    std::array<double, 4 * kScreen> storage;
-    const double* sq[4];
-    Screen() {
-      for (int i = 0; i < kScreen; ++i)
-        t[static_cast<std::size_t>(i)] = static_cast<double>(i) / (kScreen - 1);
-      patternSquares(t.data(), kScreen, storage.data(), sq);
-    }
-  };
-  static const Screen screen;
+  const fit_lattice::LatticeSquares<ScreenAxis>& screen = fit_lattice::LatticeSquares<ScreenAxis>::get();
+  const double* sq[4] = {screen.sq[0], screen.sq[1], screen.sq[2], screen.sq[3]};
   const unsigned open = ~static_cast<unsigned>(patch.faceMask) & 63u;
   if (!open) return 0;
   std::array<PatchTerm, CornerPatch::kMaxTerms> terms;
@@ -200,7 +191,7 @@ unsigned openFacesNearOtherSign(const CornerPatch& patch, std::uint8_t config, d
   for (unsigned rest = open; rest; rest &= rest - 1) {
     const int f = __builtin_ctz(rest);
     alignas(32) std::array<double, kScreen * kScreen> value;
-    FaceSums(patch, terms, numTerms, f).lattice(screen.t.data(), screen.sq, kScreen, value.data());
+    FaceSums(patch, terms, numTerms, f).lattice(screen.t, sq, kScreen, value.data());
     const double sign = positiveCorners(config, f) ? 1.0 : -1.0;
     constexpr int last = kScreen - 1;
     double lowInside = std::numeric_limits<double>::infinity(), highInside = 0;
